@@ -1,0 +1,39 @@
+# Two commands on a fresh machine: `make demo` and `make test`. Both create .venv when missing.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+export DEPTHAI_TELEMETRY := 0
+export DEPTHAI_PROTOCOL := usb
+export DEPTHAI_DISABLE_STARTUP_NOTIFICATIONS := 1
+
+.PHONY: demo test bench eval-easy eval-hard venv clean
+
+venv: $(STAMP)
+
+$(STAMP): requirements.txt pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -r requirements.txt
+	$(BIN)/python -m pip install -q --no-deps -e .
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/mmatch demo --out mmatch-demo
+
+test: $(STAMP)
+	$(BIN)/python -m pytest tests
+
+bench: $(STAMP)
+	$(BIN)/mmatch bench --out bench-results
+
+eval-easy: $(STAMP)
+	$(BIN)/mmatch sim --out data/easy --n 200 --seed 1 --mode easy --jobs 2
+	$(BIN)/mmatch eval data/easy --json data/easy-eval.json --jobs 2
+
+eval-hard: $(STAMP)
+	$(BIN)/mmatch sim --out data/hard --n 200 --seed 2 --mode hard --jobs 2
+	$(BIN)/mmatch eval data/hard --json data/hard-eval.json --jobs 2
+
+clean:
+	rm -rf $(VENV) mmatch-demo bench-results data

@@ -1,0 +1,1 @@
+"""The running system: config, per-vehicle loop, Zenoh transport, logging, replay, CLI."""

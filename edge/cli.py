@@ -1,0 +1,68 @@
+"""The `mmatch` command line: a thin dispatcher over `edge.commands.*`."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import os
+import sys
+
+from mmatch.errors import MMatchError
+
+COMMANDS: dict[str, str] = {
+    "sim": "edge.commands.sim",
+    "eval": "edge.commands.evaluate",
+    "demo": "edge.commands.demo",
+    "egomotion": "edge.commands.egomotion",
+    "bench": "edge.commands.bench",
+    "parse-uart": "edge.commands.parse_uart",
+    "radar-config": "edge.commands.radar_config",
+    "radar-info": "edge.commands.radar_info",
+    "dsp": "edge.commands.dsp",
+    "run": "edge.commands.run",
+    "replay": "edge.commands.replay",
+    "record": "edge.commands.record",
+}
+
+
+def _quiet_network_libraries() -> None:
+    """depthai phones home on import unless told not to (LIBRARIES.md section 3)."""
+    os.environ.setdefault("DEPTHAI_TELEMETRY", "0")
+    os.environ.setdefault("DEPTHAI_PROTOCOL", "usb")
+    os.environ.setdefault("DEPTHAI_DISABLE_STARTUP_NOTIFICATIONS", "1")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mmatch", description=__doc__)
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv: debug)")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, module_name in COMMANDS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            continue
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    _quiet_network_libraries()
+    args = build_parser().parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args._run(args) or 0)
+    except MMatchError as exc:
+        print(f"mmatch {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
