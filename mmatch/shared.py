@@ -1,0 +1,54 @@
+"""The shared frame: what a CAV publishes each radar frame (DESIGN.md "Wire format").
+
+All geometry is in the sender's radar frame (x right, y forward, z up; metres).
+Vehicles are indexed 0..V-1; `vehicle_index` maps each vehicle point to its vehicle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mmatch.types import DESCRIPTOR_DIM
+
+
+@dataclass
+class SharedFrame:
+    """One CAV-side product, ready for the wire.
+
+    sender: vehicle id (UTF-8, <= 64 bytes on the wire); seq: sequence number (uint32).
+    stamp: capture time of the radar frame, s, shared clock.
+    radar_height: sender's radar mounting height above the road, m.
+    ego_velocity: float64 (2,) sender radar velocity over ground (vx, vy), m/s, its frame.
+    vehicle_points: float32 (K, 5) x, y, z, doppler, snr of the moving-vehicle points.
+    vehicle_index: int32 (K,) vehicle of each point, 0..V-1.
+    vehicle_boxes: float32 (V, 6) the camera box of each vehicle (u1, v1, u2, v2, score, depth).
+    vehicle_box_index: int32 (V,) index of that box in the sender's detections.
+    vehicle_centers: float32 (V, 2) x, y estimate of each vehicle (point centroid, or from
+        the box bearing and depth when it has no radar point).
+    vehicle_features: float32 (V, 32) appearance descriptor per vehicle.
+    background: float32 (B, 3) x, y, z of the stationary-background sketch.
+    """
+
+    sender: str
+    seq: int
+    stamp: float
+    radar_height: float
+    ego_velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    vehicle_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 5), np.float32))
+    vehicle_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    vehicle_boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 6), np.float32))
+    vehicle_box_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    vehicle_centers: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    vehicle_features: np.ndarray = field(
+        default_factory=lambda: np.zeros((0, DESCRIPTOR_DIM), np.float32))
+    background: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+
+    @property
+    def num_vehicles(self) -> int:
+        return len(self.vehicle_boxes)
+
+    def points_of(self, v: int) -> np.ndarray:
+        """The (k, 5) points of vehicle v."""
+        return self.vehicle_points[self.vehicle_index == v]
