@@ -1,0 +1,170 @@
+"""A simulated world over time, seen by the Ego and the CAV (each with its own pose and clock).
+
+`make_scenario(seed, mode).observe(role, t)` renders what one vehicle's radar and camera
+report at time t; vehicles move between calls. Time is cut into episodes of
+`EPISODE_S` seconds, each a freshly drawn road and traffic, so a long run never drives
+off the map. `make_scene` renders one Ego/CAV frame pair as a `Scene` with ground truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mmatch.sim.camera import CameraSpec, camera_pose_from, observe_camera
+from mmatch.sim.geometry import pose_matrix
+from mmatch.sim.radar import RadarSpec, observe_radar
+from mmatch.sim.world import World, build_world
+from mmatch.types import CameraModel, Scene, View
+
+EPISODE_S = 10.0
+ROLES = ("ego", "cav")
+FRAME_PERIOD_S = 0.05
+
+
+@dataclass(frozen=True)
+class Mount:
+    """How one vehicle carries its sensors (fixed for the vehicle's lifetime)."""
+
+    radar_height: float
+    radar_yaw_offset: float        # rad, CCW; the radar's boresight is off the vehicle axis
+    cam_offset: tuple[float, float, float]   # right, back from the radar, up (m)
+    cam_pitch: float               # rad, positive looks down
+    focal: float                   # px
+    principal: tuple[float, float]
+    light_gain: float              # this camera's exposure/lighting (descriptor value scale)
+    depth_sigma_rel: float         # monocular depth error of its detector
+
+
+def draw_mount(rng: np.random.Generator, spec: CameraSpec) -> Mount:
+    return Mount(radar_height=float(rng.uniform(0.4, 0.9)),
+                 radar_yaw_offset=float(np.radians(np.clip(rng.normal(0, 2.0), -5, 5))),
+                 cam_offset=(float(rng.normal(0, 0.1)), float(rng.uniform(1.5, 2.2)), float(rng.uniform(0.5, 0.9))),
+                 cam_pitch=float(np.radians(rng.uniform(0, 3))),
+                 focal=float(rng.uniform(900, 1100)),
+                 principal=(spec.width / 2 + float(rng.normal(0, 8)), spec.height / 2 + float(rng.normal(0, 8))),
+                 light_gain=float(rng.uniform(0.75, 1.2)),
+                 depth_sigma_rel=float(rng.uniform(0.05, 0.15)))
+
+
+@dataclass
+class Observation:
+    """One vehicle's sensor output at one time, plus its ground truth."""
+
+    points: np.ndarray
+    boxes: np.ndarray
+    features: np.ndarray
+    camera: CameraModel
+    radar_height: float
+    stamp: float
+    point_labels: np.ndarray
+    box_ids: np.ndarray
+    world_T_radar: np.ndarray
+    velocity: np.ndarray
+
+
+class Scenario:
+    """A world that moves over time, observed by the Ego (vehicle 0) and the CAV (vehicle 1)."""
+
+    def __init__(self, seed: int, mode: str = "mixed", radar: RadarSpec = RadarSpec(),
+                 camera: CameraSpec = CameraSpec()) -> None:
+        if mode not in ("easy", "hard", "mixed"):
+            raise ValueError(f"mode must be easy, hard or mixed, not {mode!r}")
+        self.seed, self.mode, self.radar, self.cam = seed, mode, radar, camera
+        rng = np.random.default_rng([seed, 7])
+        self.mounts = {role: draw_mount(rng, camera) for role in ROLES}
+        self._worlds: dict[int, World] = {}
+
+    def world(self, episode: int) -> World:
+        if episode not in self._worlds:
+            if len(self._worlds) > 4:
+                self._worlds.pop(next(iter(self._worlds)))
+            self._worlds[episode] = build_world(np.random.default_rng([self.seed, episode, 1]), self.mode)
+        return self._worlds[episode]
+
+    def radar_pose(self, world: World, role: str, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """world_T_radar (4x4) and the radar's world velocity (2,) of `role` at local time t."""
+        k = world.ego if role == "ego" else world.cav
+        veh = world.vehicles
+        m = self.mounts[role]
+        f = np.array([np.cos(veh.yaw[k]), np.sin(veh.yaw[k])])
+        xy = veh.position(t)[k] + f * (veh.size[k, 0] / 2 - 0.1)
+        return pose_matrix(xy, veh.yaw[k] + m.radar_yaw_offset, m.radar_height), veh.velocity[k]
+
+    def camera_model(self, role: str) -> tuple[CameraModel, np.ndarray]:
+        """The role's CameraModel and radar_T_camsensor-free pieces: (model, radar_T_cam)."""
+        m = self.mounts[role]
+        # camera pose in the radar frame: vehicle axes are the radar axes turned back by the mount yaw
+        veh_T_radar = pose_matrix(np.zeros(2), np.pi / 2 + m.radar_yaw_offset, 0.0)
+        veh_T_cams = pose_matrix(np.array([m.cam_offset[0], -m.cam_offset[1]]), np.pi / 2, m.cam_offset[2])
+        veh_T_cam = camera_pose_from(veh_T_cams, m.cam_pitch)
+        T_cam_radar = np.linalg.inv(veh_T_cam) @ veh_T_radar
+        K = np.array([[m.focal, 0, m.principal[0]], [0, m.focal, m.principal[1]], [0, 0, 1.0]])
+        return CameraModel(K=K, image_size=(self.cam.width, self.cam.height), T_cam_radar=T_cam_radar), T_cam_radar
+
+    def observe(self, role: str, t: float) -> Observation:
+        """Render `role`'s radar frame and camera detections at time t (s)."""
+        episode = int(np.floor(t / EPISODE_S))
+        return self._observe(self.world(episode), role, t - episode * EPISODE_S, t,
+                             np.random.default_rng([self.seed, episode, ROLES.index(role) + 2,
+                                                    int(round(t * 1e6)) % 2**32]))
+
+    def _observe(self, world: World, role: str, t_local: float, stamp: float,
+                 rng: np.random.Generator) -> Observation:
+        own = world.ego if role == "ego" else world.cav
+        w_T_r, vel = self.radar_pose(world, role, t_local)
+        pts, labels = observe_radar(world, t_local, w_T_r, vel, own, rng, self.radar)
+        cam, T_cam_radar = self.camera_model(role)
+        w_T_cam = w_T_r @ np.linalg.inv(T_cam_radar)
+        m = self.mounts[role]
+        boxes, feats, ids = observe_camera(world, t_local, w_T_cam, cam.K, own, rng, self.cam,
+                                           m.depth_sigma_rel, m.light_gain)
+        v_radar = (w_T_r[:3, :3].T @ np.array([vel[0], vel[1], 0.0]))[:2]
+        return Observation(points=pts, boxes=boxes, features=feats, camera=cam,
+                           radar_height=m.radar_height, stamp=stamp, point_labels=labels,
+                           box_ids=ids, world_T_radar=w_T_r, velocity=v_radar)
+
+
+def make_scenario(seed: int, mode: str = "mixed") -> Scenario:
+    """The scenario of `seed` in `mode` ('easy', 'hard' or 'mixed')."""
+    return Scenario(seed, mode)
+
+
+def _pairs(ego_ids: np.ndarray, cav_ids: np.ndarray) -> np.ndarray:
+    pairs = [(i, j) for i, a in enumerate(ego_ids) if a >= 0 for j, b in enumerate(cav_ids) if b == a]
+    return np.array(pairs, np.int32).reshape(-1, 2)
+
+
+def make_scene(seed: int, index: int, mode: str, min_pairs: int = 2, tries: int = 30) -> Scene:
+    """Scene `index` of the data set `seed`: an Ego/CAV frame pair with ground truth.
+
+    Each scene is its own episode with its own mounts. Draws are repeated (up to `tries`)
+    until both cameras detect at least `min_pairs` common vehicles, as in the paper's
+    evaluation set; the last draw is kept otherwise.
+    """
+    scene = None
+    for attempt in range(tries):
+        sc = Scenario(int(np.random.default_rng([seed, index, attempt]).integers(2**31)), mode)
+        world = sc.world(0)
+        rng = np.random.default_rng([seed, index, attempt, 99])
+        dt = float(rng.uniform(-FRAME_PERIOD_S / 2, FRAME_PERIOD_S / 2))
+        t0 = float(rng.uniform(0, 0.2))
+        ego = sc._observe(world, "ego", t0, t0, rng)
+        cav = sc._observe(world, "cav", t0 + dt, t0 + dt, rng)
+        gt = np.linalg.inv(ego.world_T_radar) @ cav.world_T_radar
+        pairs = _pairs(ego.box_ids, cav.box_ids)
+        meta = dict(world.meta, seed=seed, index=index, attempt=attempt,
+                    parked_ids=np.flatnonzero(world.vehicles.parked).tolist(),
+                    ego_velocity=ego.velocity.tolist(), cav_velocity=cav.velocity.tolist(),
+                    difficulty=world.meta["mode"])
+        scene = Scene(ego=_view(ego), cav=_view(cav), gt_T_ego_cav=gt, gt_pairs=pairs, meta=meta,
+                      name=f"scene_{index:05d}")
+        if len(pairs) >= min_pairs:
+            break
+    return scene
+
+
+def _view(o: Observation) -> View:
+    return View(points=o.points, boxes=o.boxes, features=o.features, camera=o.camera, stamp=o.stamp,
+                radar_height=o.radar_height, point_labels=o.point_labels, box_ids=o.box_ids)
