@@ -1,0 +1,330 @@
+"""The vehicle service configuration: one typed, nested object loaded from TOML.
+
+Defaults live in code; a file in cfg/ overrides them. Loading refuses unknown keys,
+wrong types and impossible values with a `ConfigError` that names the key
+(e.g. ``radar.baudrate``). The effective configuration (defaults + file) can be
+written back as TOML (`to_toml`) so it is saved beside every log.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mmatch.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+ROLES = ("cav", "ego", "both")
+RADAR_SOURCES = ("uart", "dca1000", "replay", "sim", "none")
+CAMERA_SOURCES = ("opencv", "oak", "replay", "sim", "none")
+
+
+def _opt(default: Any, *, choices: tuple | None = None, lo: float | None = None,
+         hi: float | None = None, lo_open: bool = False, doc: str = "") -> Any:
+    """A dataclass field with its validation rules kept as metadata."""
+    meta = {"choices": choices, "lo": lo, "hi": hi, "lo_open": lo_open, "doc": doc}
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class VehicleSection:
+    """Who this process is."""
+
+    id: str = _opt("vehicle", doc="vehicle id; a path segment of the Zenoh key expressions")
+    role: str = _opt("cav", choices=ROLES, doc="cav publishes shared frames, ego fuses, both does both")
+
+
+@dataclass(frozen=True)
+class RadarSection:
+    """The radar source (named backend) and its settings."""
+
+    source: str = _opt("sim", choices=RADAR_SOURCES)
+    port: str = _opt("", doc="uart: data port (device path or pyserial URL)")
+    baudrate: int = _opt(921600, lo=1200, hi=12_000_000)
+    cli_port: str = _opt("", doc="uart: CLI port for sending `cfg` at start; empty = do not configure")
+    cfg: str = _opt("", doc="radar chirp profile (.cfg); required for dca1000")
+    dca_host: str = _opt("127.0.0.1", doc="dca1000: local address to bind")
+    dca_data_port: int = _opt(4098, lo=1, hi=65535)
+    dca_config_port: int = _opt(4096, lo=1, hi=65535)
+    path: str = _opt("", doc="replay: MCAP log or raw UART capture")
+    height_m: float = _opt(1.0, lo=0.0, hi=10.0, doc="radar mounting height above the road, m")
+    reconnect_s: float = _opt(1.0, lo=0.0, lo_open=True, hi=60.0, doc="wait between reopen attempts")
+    read_timeout_s: float = _opt(0.2, lo=0.0, lo_open=True, hi=10.0)
+
+
+@dataclass(frozen=True)
+class CameraSection:
+    """The camera source (named backend) and its settings."""
+
+    source: str = _opt("sim", choices=CAMERA_SOURCES)
+    device: str = _opt("0", doc="opencv: device index, V4L2 path, GStreamer pipeline or video file")
+    calibration: str = _opt("", doc="calibration file (K, distortion, image size, T_cam_radar)")
+    model: str = _opt("", doc="detector model (ONNX, or NN archive for oak)")
+    path: str = _opt("", doc="replay: MCAP log")
+    threads: int = _opt(1, lo=1, hi=64)
+    reconnect_s: float = _opt(2.0, lo=0.0, lo_open=True, hi=60.0)
+
+
+@dataclass(frozen=True)
+class SimSection:
+    """The simulated sensors: a scenario played over wall-clock time.
+
+    Both processes derive scenario time from the shared clock, t = now mod period_s, so
+    they see the same world; each samples it at its own frame phase.
+    """
+
+    seed: int = _opt(1, lo=0)
+    mode: str = _opt("mixed", choices=("easy", "hard", "mixed"))
+    rate_hz: float = _opt(20.0, lo=0.0, lo_open=True, hi=1000.0)
+    phase_s: float = _opt(0.0, lo=0.0, hi=10.0, doc="frame phase offset on the shared clock, s")
+    period_s: float = _opt(60.0, lo=0.0, lo_open=True, doc="scenario time wraps after this, s")
+
+
+@dataclass(frozen=True)
+class ZenohSection:
+    """Zenoh session. Peer mode with explicit endpoints, or client mode to a router."""
+
+    mode: str = _opt("peer", choices=("peer", "client"))
+    listen: list[str] = _opt([])
+    connect: list[str] = _opt([])
+    multicast_scouting: bool = _opt(False)
+    gossip: bool = _opt(False)
+    shared_memory: bool = _opt(False)
+    config_file: str = _opt("", doc="a zenoh JSON5 file; the keys above are applied on top")
+
+
+@dataclass(frozen=True)
+class EgoSection:
+    """How the Ego pairs and fuses."""
+
+    cavs: list[str] = _opt([], doc="CAV ids to listen to; empty = every vehicle")
+    pair_tolerance_s: float = _opt(0.06, lo=0.0, lo_open=True, hi=5.0,
+                                   doc="max |own stamp - CAV stamp| for a pair, s")
+    link_timeout_s: float = _opt(0.5, lo=0.0, lo_open=True, hi=60.0,
+                                 doc="a CAV with no frame for this long is flagged lost")
+    history: int = _opt(16, lo=1, hi=1024, doc="CAV frames kept per sender (keep-newest ring)")
+
+
+@dataclass(frozen=True)
+class LoopSection:
+    queue_size: int = _opt(2, lo=1, hi=1024, doc="per-sensor queue; the oldest frame is dropped")
+    camera_tolerance_s: float = _opt(0.1, lo=0.0, lo_open=True, hi=5.0,
+                                     doc="max |radar stamp - camera stamp| to use detections, s")
+    status_interval_s: float = _opt(5.0, lo=0.0, lo_open=True, hi=3600.0)
+
+
+@dataclass(frozen=True)
+class LogSection:
+    """Field logging to MCAP."""
+
+    dir: str = _opt("", doc="log folder; empty = no logging")
+    rotate_mb: float = _opt(512.0, lo=0.0, lo_open=True)
+    rotate_s: float = _opt(600.0, lo=0.0, lo_open=True)
+    chunk_kb: float = _opt(256.0, lo=0.0, lo_open=True, hi=65536.0)
+    flush_s: float = _opt(1.0, lo=0.0, lo_open=True, hi=600.0, doc="close a chunk at least this often")
+    compression: str = _opt("zstd", choices=("zstd", "lz4", "none"))
+    raw: bool = _opt(True, doc="log raw UART bytes / DCA1000 frames")
+    raw_floor_mb: float = _opt(2048.0, lo=0.0, doc="below this free disk, raw data stops")
+    floor_mb: float = _opt(512.0, lo=0.0, doc="below this free disk, all logging stops")
+
+
+@dataclass(frozen=True)
+class HealthSection:
+    watchdog: bool = _opt(True, doc="send WATCHDOG=1 when systemd asks for it")
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """The whole vehicle service configuration (cfg/vehicle*.toml)."""
+
+    vehicle: VehicleSection = field(default_factory=VehicleSection)
+    radar: RadarSection = field(default_factory=RadarSection)
+    camera: CameraSection = field(default_factory=CameraSection)
+    sim: SimSection = field(default_factory=SimSection)
+    zenoh: ZenohSection = field(default_factory=ZenohSection)
+    ego: EgoSection = field(default_factory=EgoSection)
+    loop: LoopSection = field(default_factory=LoopSection)
+    log: LogSection = field(default_factory=LogSection)
+    health: HealthSection = field(default_factory=HealthSection)
+
+    @property
+    def is_cav(self) -> bool:
+        return self.vehicle.role in ("cav", "both")
+
+    @property
+    def is_ego(self) -> bool:
+        return self.vehicle.role in ("ego", "both")
+
+
+# --------------------------------------------------------------------------- loading
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _check_scalar(value: Any, tp: Any, key: str) -> Any:
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true/false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{key}: must be finite, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    raise ConfigError(f"{key}: unsupported type {_type_name(tp)}")  # pragma: no cover
+
+
+def _check_rules(value: Any, meta: dict, key: str) -> None:
+    choices = meta.get("choices")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"{key}: {value!r} is not one of {', '.join(map(str, choices))}")
+    lo, hi = meta.get("lo"), meta.get("hi")
+    if lo is not None and (value < lo or (meta.get("lo_open") and value == lo)):
+        rel = ">" if meta.get("lo_open") else ">="
+        raise ConfigError(f"{key}: {value!r} is impossible, must be {rel} {lo}")
+    if hi is not None and value > hi:
+        raise ConfigError(f"{key}: {value!r} is impossible, must be <= {hi}")
+
+
+def _build(cls: type, data: Any, prefix: str) -> Any:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{prefix or '<root>'}: expected a table, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        key = f"{prefix}.{unknown[0]}" if prefix else unknown[0]
+        raise ConfigError(f"{key}: unknown key (known: {', '.join(names)})")
+    kwargs: dict[str, Any] = {}
+    for name, value in data.items():
+        key = f"{prefix}.{name}" if prefix else name
+        tp = hints[name]
+        if dataclasses.is_dataclass(tp):
+            kwargs[name] = _build(tp, value, key)
+            continue
+        if typing.get_origin(tp) is list:
+            (item_tp,) = typing.get_args(tp)
+            if not isinstance(value, list):
+                raise ConfigError(f"{key}: expected a list, got {value!r}")
+            kwargs[name] = [_check_scalar(v, item_tp, f"{key}[{i}]") for i, v in enumerate(value)]
+            continue
+        kwargs[name] = _check_scalar(value, tp, key)
+        _check_rules(kwargs[name], dict(names[name].metadata), key)
+    return cls(**kwargs)
+
+
+def _cross_checks(cfg: VehicleConfig) -> None:
+    """Checks that involve several keys; each error names the key to fix."""
+    if not cfg.vehicle.id or any(c in cfg.vehicle.id for c in "/*$?# ") or len(cfg.vehicle.id) > 64:
+        raise ConfigError(f"vehicle.id: {cfg.vehicle.id!r} must be 1-64 characters without / * $ ? # or space")
+    for i, cav in enumerate(cfg.ego.cavs):
+        if not cav or any(c in cav for c in "/*$?# "):
+            raise ConfigError(f"ego.cavs[{i}]: {cav!r} is not a vehicle id")
+    if cfg.radar.source == "uart" and not cfg.radar.port:
+        raise ConfigError("radar.port: required when radar.source = \"uart\"")
+    if cfg.radar.source == "dca1000" and not cfg.radar.cfg:
+        raise ConfigError("radar.cfg: required when radar.source = \"dca1000\"")
+    if cfg.radar.source == "replay" and not cfg.radar.path:
+        raise ConfigError("radar.path: required when radar.source = \"replay\"")
+    if cfg.camera.source == "replay" and not cfg.camera.path:
+        raise ConfigError("camera.path: required when camera.source = \"replay\"")
+    if cfg.camera.source in ("opencv", "oak") and not cfg.camera.calibration:
+        raise ConfigError(f"camera.calibration: required when camera.source = \"{cfg.camera.source}\"")
+    if cfg.is_cav and cfg.radar.source == "none":
+        raise ConfigError("radar.source: a CAV needs a radar (got \"none\")")
+    if cfg.zenoh.mode == "client" and not cfg.zenoh.connect:
+        raise ConfigError("zenoh.connect: client mode needs at least one router endpoint")
+    for key in ("listen", "connect"):
+        for i, ep in enumerate(getattr(cfg.zenoh, key)):
+            if "/" not in ep:
+                raise ConfigError(f"zenoh.{key}[{i}]: {ep!r} is not an endpoint like tcp/127.0.0.1:7447")
+    if cfg.log.floor_mb > cfg.log.raw_floor_mb:
+        raise ConfigError("log.floor_mb: must be <= log.raw_floor_mb (raw data stops first)")
+    if cfg.sim.phase_s >= 1.0 / cfg.sim.rate_hz:
+        raise ConfigError("sim.phase_s: must be shorter than one frame period (1 / sim.rate_hz)")
+
+
+def from_dict(data: dict, *, source: str = "<dict>") -> VehicleConfig:
+    """Build and check a config from a parsed TOML table; errors name the key."""
+    try:
+        cfg = _build(VehicleConfig, data, "")
+        _cross_checks(cfg)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    return cfg
+
+
+def load(path: str | Path, overrides: dict | None = None) -> VehicleConfig:
+    """Load a TOML file; `overrides` is a nested dict merged on top (from the CLI)."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{path}: no such file") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    if overrides:
+        data = merge(data, overrides)
+    return from_dict(data, source=str(path))
+
+
+def merge(base: dict, top: dict) -> dict:
+    """Nested dict merge (top wins), new dicts, inputs untouched."""
+    out = dict(base)
+    for k, v in top.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def to_dict(cfg: Any) -> dict:
+    """The effective config as plain nested dicts."""
+    return dataclasses.asdict(cfg)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {v!r} as TOML")  # pragma: no cover
+
+
+def to_toml(cfg: VehicleConfig) -> str:
+    """The effective config as TOML text; `load` of it gives an equal config."""
+    lines = ["# effective mmatch vehicle config (defaults + file)"]
+    for section, values in to_dict(cfg).items():
+        lines.append(f"\n[{section}]")
+        lines += [f"{k} = {_toml_value(v)}" for k, v in values.items()]
+    return "\n".join(lines) + "\n"
+
+
+def log_effective(cfg: VehicleConfig) -> None:
+    """Log the effective config at INFO, one line per section."""
+    for section, values in to_dict(cfg).items():
+        log.info("config [%s] %s", section, " ".join(f"{k}={v!r}" for k, v in values.items()))

@@ -1,0 +1,98 @@
+"""Zenoh transport on 127.0.0.1: two peers, keys, foreign/malformed payloads, keep-newest."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+from conftest import free_port
+
+from edge import keys
+from edge.config import ZenohSection
+from edge.transport import KeepNewest, Transport, zenoh_config_json
+from mmatch.errors import ConfigError, DecodeError
+
+
+def test_key_expressions():
+    assert keys.shared("cav1") == "mmatch/v1/cav1/shared"
+    assert keys.fused("ego") == "mmatch/v1/ego/fused"
+    assert keys.health("ego") == "mmatch/v1/ego/health"
+    assert keys.all_of("shared") == "mmatch/v1/*/shared"
+    assert keys.parse("mmatch/v1/cav1/shared") == ("cav1", "shared")
+    assert keys.parse("mmatch/v2/cav1/shared") is None
+    assert keys.parse("mmatch/v1/cav1/other") is None
+    with pytest.raises(ConfigError):
+        keys.shared("a/b")
+
+
+def test_zenoh_settings_are_explicit():
+    j = zenoh_config_json(ZenohSection(listen=["tcp/127.0.0.1:7000"]))
+    assert j["listen/endpoints"] == ["tcp/127.0.0.1:7000"]
+    assert j["scouting/multicast/enabled"] is False and j["scouting/gossip/enabled"] is False
+    assert j["transport/shared_memory/enabled"] is False
+    # a connect-only peer still sets listen explicitly (default would be every interface)
+    assert zenoh_config_json(ZenohSection(connect=["tcp/127.0.0.1:7000"]))["listen/endpoints"] == []
+    c = zenoh_config_json(ZenohSection(mode="client", connect=["tcp/127.0.0.1:7000"]))
+    assert c["mode"] == "client" and "listen/endpoints" not in c
+    with pytest.raises(ConfigError):
+        zenoh_config_json(ZenohSection(mode="client"))
+
+
+def test_keep_newest_drops_oldest():
+    q: KeepNewest[int] = KeepNewest(3)
+    for i in range(10):
+        q.put(i)
+    assert q.dropped == 7 and len(q) == 3
+    assert [q.get(0), q.get(0), q.get(0), q.get(0.01)] == [7, 8, 9, None]
+    for i in range(5):
+        q.put(i)
+    assert q.get_newest(0) == 4 and q.dropped == 7 + 2 + 2 and len(q) == 0
+
+
+def test_keep_newest_wakes_a_waiting_reader():
+    q: KeepNewest[str] = KeepNewest(1)
+    threading.Timer(0.05, q.put, args=("x",)).start()
+    assert q.get(5.0) == "x"
+    threading.Timer(0.05, q.close).start()
+    t0 = time.monotonic()
+    assert q.get(5.0) is None and time.monotonic() - t0 < 4.0
+
+
+def test_two_peers_exchange_and_count_bad_payloads():
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    got: list[tuple[str, bytes]] = []
+    arrived = threading.Event()
+
+    def on_payload(vehicle: str, payload: bytes) -> None:
+        if payload.startswith(b"BAD"):
+            raise DecodeError("bad magic")
+        got.append((vehicle, payload))
+        if len(got) >= 2:
+            arrived.set()
+
+    with Transport(ZenohSection(listen=[ep])) as ego, Transport(ZenohSection(connect=[ep])) as cav:
+        ego.subscribe(keys.all_of("shared"), "shared", on_payload, vehicles=["cav1", "cav2"])
+        assert cav.wait_for_peers(5.0)
+        cav.put(keys.shared("cav1"), b"first")  # declares the publisher
+        deadline = time.monotonic() + 5
+        while not cav.has_subscribers(keys.shared("cav1")) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        cav.put(keys.shared("cav3"), b"not listened to")
+        cav.put(keys.shared("cav1"), b"BAD frame")
+        cav.put(keys.shared("cav1"), b"one")
+        cav.put(keys.shared("cav2"), b"two")
+        assert arrived.wait(5.0)
+        time.sleep(0.1)
+        drops = ego.drops.snapshot()
+    assert ("cav1", b"one") in got and ("cav2", b"two") in got
+    assert all(not p.startswith(b"BAD") for _, p in got)
+    assert drops.get("malformed") == 1
+    assert drops.get("foreign") == 1
+
+
+def test_close_is_safe_twice():
+    t = Transport(ZenohSection(listen=[f"tcp/127.0.0.1:{free_port()}"])).open()
+    t.close()
+    t.close()
