@@ -1,0 +1,58 @@
+"""Antenna layouts: TX and RX phase-centre positions in half-wavelengths, radar frame.
+
+Positions are (x, z): x right, z up, in units of lambda/2 at the chirp's centre frequency.
+A target in direction u = (sin(az) cos(el), cos(az) cos(el), sin(el)) reaches virtual channel
+(tx, rx) over a path shorter by (p_tx + p_rx) . u, i.e. with baseband phase -pi * (x u_x + z u_z)
+relative to the origin (the synthesiser and the DSP both use this model).
+
+AWR2243BOOST (same array as AWR1843BOOST): RX0-RX3 on a line at x = 0..3; TX0 at x = 0,
+TX2 at x = 4 (together an 8-element azimuth array), TX1 at x = 2, raised by lambda/2 (z = 1),
+which gives 4 elevation channels. The direction of x along the RX line is the one TI's demo
+assumes; check it once with a corner reflector on the real board (`mirror_x` flips it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mmatch.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class AntennaLayout:
+    """TX/RX positions (x, z) in half-wavelengths, indexed by TX / RX number."""
+
+    name: str
+    tx: tuple[tuple[float, float], ...]
+    rx: tuple[tuple[float, float], ...]
+
+    def virtual_positions(self, tx_order: tuple[int, ...], rx: tuple[int, ...]) -> np.ndarray:
+        """float64 (slots * len(rx), 2) positions of the virtual channels, in cube order."""
+        for t in tx_order:
+            if not 0 <= t < len(self.tx):
+                raise ConfigError(f"layout {self.name} has no TX{t}")
+        for r in rx:
+            if not 0 <= r < len(self.rx):
+                raise ConfigError(f"layout {self.name} has no RX{r}")
+        t = np.asarray([self.tx[i] for i in tx_order], dtype=np.float64)
+        r = np.asarray([self.rx[i] for i in rx], dtype=np.float64)
+        return (t[:, None, :] + r[None, :, :]).reshape(-1, 2)
+
+    def mirror_x(self) -> "AntennaLayout":
+        """The same array seen with x reversed (for a board mounted or wired the other way)."""
+        flip = lambda ps: tuple((-x, z) for x, z in ps)  # noqa: E731
+        return AntennaLayout(self.name + "-mirrored", flip(self.tx), flip(self.rx))
+
+
+AWR2243BOOST = AntennaLayout(
+    name="AWR2243BOOST",
+    tx=((0.0, 0.0), (2.0, 1.0), (4.0, 0.0)),
+    rx=((0.0, 0.0), (1.0, 0.0), (2.0, 0.0), (3.0, 0.0)),
+)
+
+LAYOUTS: dict[str, AntennaLayout] = {
+    "awr2243boost": AWR2243BOOST,
+    "awr1843boost": AntennaLayout("AWR1843BOOST", AWR2243BOOST.tx, AWR2243BOOST.rx),
+}

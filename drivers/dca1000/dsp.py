@@ -1,0 +1,319 @@
+"""Radar signal processing of a raw ADC cube into a point cloud (vectorised numpy/scipy).
+
+Chain (per frame): range FFT with window -> optional static clutter removal (subtract the mean
+over chirps) -> Doppler FFT with window -> non-coherent sum over virtual channels -> 2D CFAR
+(CA or OS) with peak grouping (local maximum in 3 x 3 cells, Doppler cyclic) -> per detection:
+TDM-MIMO Doppler phase compensation, channel phase calibration, azimuth FFT over the
+horizontal virtual array, elevation from the raised channels -> points x, y, z, doppler, snr.
+
+Frames: radar frame x right, y forward, z up (m); doppler m/s, positive = range increasing;
+snr dB over the CFAR noise estimate. Antenna phase model: see antenna.py.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft as sfft
+from scipy import ndimage
+from scipy.signal import get_window
+
+from mmatch.errors import ConfigError
+from mmatch.types import empty_points
+
+from .antenna import AWR2243BOOST, AntennaLayout
+from .layout import FrameGeometry
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DspConfig:
+    """Processing settings (defaults are TI's mmw demo values; `from_cfg` reads a .cfg).
+
+    guard/train: CFAR guard and training cells on each side, (range, doppler).
+    threshold_db: a cell is detected when its power exceeds the noise estimate by this much;
+        the noise estimate is the training-cell mean (CA) or the `os_rank` quantile (OS).
+    min_range_m / max_range_m: detections outside are ignored (None = the cfg's max range).
+    angle_fft: azimuth FFT size; max_points: keep the strongest points of a frame.
+    range_bias_m, channel_phase: calibration of compRangeBiasAndRxChanPhase (channel_phase:
+        complex factor per virtual channel in cube order, multiplied in).
+    """
+
+    window: str = "hann"
+    clutter_removal: bool = False
+    cfar: str = "ca"
+    guard: tuple[int, int] = (4, 2)
+    train: tuple[int, int] = (8, 4)
+    threshold_db: float = 15.0
+    os_rank: float = 0.75
+    peak_grouping: bool = True
+    min_range_m: float = 0.3
+    max_range_m: float | None = None
+    angle_fft: int = 256
+    elevation: bool = True
+    max_points: int = 1024
+    range_bias_m: float = 0.0
+    channel_phase: tuple[complex, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.cfar not in ("ca", "os"):
+            raise ConfigError(f"cfar must be 'ca' or 'os', got {self.cfar!r}")
+        if not 0 < self.os_rank < 1:
+            raise ConfigError("os_rank must be in (0, 1)")
+        if min(self.guard) < 0 or min(self.train) < 1:
+            raise ConfigError("CFAR guard must be >= 0 and training >= 1 cell")
+
+    @classmethod
+    def from_cfg(cls, cfg, **overrides) -> "DspConfig":
+        """Read cfarCfg (range = procDirection 0, Doppler = 1), clutterRemoval, cfarFovCfg
+        (range limits) and compRangeBiasAndRxChanPhase from a drivers.ti.cfg.RadarCfg."""
+        kw: dict = {}
+        guard = list(cls.guard)
+        train = list(cls.train)
+        for lineno, cmd, args in cfg.commands:
+            try:
+                a = [float(x) for x in args]
+            except ValueError as exc:
+                raise ConfigError(f"{cfg.path}:{lineno}: {cmd}: {exc}") from exc
+            if cmd == "cfarCfg" and len(a) in (8, 9):
+                if len(a) == 9:
+                    a = a[1:]  # drop subFrameIdx (SDK 3.x)
+                direction, win, grd, thr = int(a[0]), int(a[2]), int(a[3]), a[6]
+                if direction in (0, 1):
+                    train[direction], guard[direction] = max(1, win), max(0, grd)
+                    if direction == 0:
+                        kw["threshold_db"] = thr
+                    kw["peak_grouping"] = bool(a[7])
+            elif cmd == "clutterRemoval":
+                kw["clutter_removal"] = bool(a[-1])
+            elif cmd == "cfarFovCfg" and len(a) == 4 and int(a[1]) == 0:
+                kw["min_range_m"], kw["max_range_m"] = a[2], a[3]
+            elif cmd == "compRangeBiasAndRxChanPhase":
+                kw["range_bias_m"] = a[0]
+                re, im = np.asarray(a[1::2]), np.asarray(a[2::2])
+                kw["channel_phase"] = tuple(complex(x, y) for x, y in zip(re, im))
+        kw["guard"], kw["train"] = tuple(guard), tuple(train)
+        kw.update(overrides)
+        return cls(**kw)
+
+
+@dataclass(frozen=True)
+class DspResult:
+    """Points and the intermediate maps of one frame.
+
+    points: float32 (K, 5) x, y, z, doppler, snr. cells: int (K, 2) (doppler bin, range bin)
+    of each point (Doppler bin unshifted, 0..D-1). power: float32 (D, R) detection map (None
+    unless asked for). noise: float32 (D, R) CA noise map (None unless asked for).
+    """
+
+    points: np.ndarray
+    cells: np.ndarray
+    power: np.ndarray | None = None
+    noise: np.ndarray | None = None
+
+
+class RadarDsp:
+    """Point-cloud processing for one chirp configuration.
+
+    chirp: drivers.ti.cfg.ChirpParams; geom: FrameGeometry (tx order, RX); layout: antenna
+    positions. Precomputes windows and steering maps; `process(cube)` is then allocation-light.
+    """
+
+    def __init__(self, chirp, geom: FrameGeometry, config: DspConfig = DspConfig(),
+                 layout: AntennaLayout = AWR2243BOOST) -> None:
+        self.chirp = chirp
+        self.geom = geom
+        self.config = config
+        self.L = geom.num_loops
+        self.T = len(geom.tx_order)
+        self.V = geom.num_virtual
+        self.N = geom.num_samples
+        self.NR = max(chirp.num_range_bins, self.N)
+        self.range_step = chirp.range_idx_to_m * chirp.num_range_bins / self.NR
+        self.doppler_step = chirp.doppler_resolution_mps * chirp.num_doppler_bins / self.L
+        self.win_r = get_window(config.window, self.N, fftbins=False).astype(np.float32)
+        self.win_d = get_window(config.window, self.L, fftbins=False).astype(np.float32)
+        # the window's coherent gain is divided out so power stays in ADC units
+        self.win_r /= self.win_r.mean()
+        self.win_d /= self.win_d.mean()
+        max_r = config.max_range_m if config.max_range_m is not None else chirp.max_range_m
+        self.r_lo = max(1, int(math.ceil((config.min_range_m + config.range_bias_m) / self.range_step)))
+        self.r_hi = min(self.NR, int(max_r / self.range_step) + 1)
+        if self.r_lo >= self.r_hi:
+            raise ConfigError(f"range limits {config.min_range_m}..{max_r} m leave no range bin")
+        # signed Doppler bin of each unshifted bin, and the TDM-MIMO slot of each virtual channel
+        self.d_signed = np.fft.fftfreq(self.L, 1.0 / self.L).astype(np.int64)
+        self.slot = np.repeat(np.arange(self.T), geom.num_rx)
+        if config.channel_phase is not None:
+            if len(config.channel_phase) < self.V:
+                raise ConfigError(f"channel phase calibration has {len(config.channel_phase)} values, "
+                                  f"{self.V} virtual channels need one each")
+            self.cal = np.asarray(config.channel_phase[: self.V], dtype=np.complex64)
+        else:
+            self.cal = None
+        # virtual array geometry
+        pos = layout.virtual_positions(geom.tx_order, geom.rx)
+        self.pos = pos
+        zs, counts = np.unique(pos[:, 1], return_counts=True)
+        z_az = zs[np.argmax(counts)]
+        self.az_idx = np.flatnonzero(pos[:, 1] == z_az)
+        xa = pos[self.az_idx, 0]
+        x0 = xa.min()
+        if not np.allclose(xa - x0, np.round(xa - x0)):
+            raise ConfigError(f"layout {layout.name}: azimuth positions {xa} are not on a lambda/2 grid")
+        slots = np.round(xa - x0).astype(int)
+        self.n_az = int(slots.max()) + 1
+        m = np.zeros((len(self.az_idx), self.n_az), dtype=np.complex64)
+        m[np.arange(len(slots)), slots] = 1.0
+        m /= np.maximum(m.sum(axis=0, keepdims=True).real, 1)
+        self.az_map = m
+        self.el_idx = np.flatnonzero(pos[:, 1] != z_az)
+        if len(self.el_idx):
+            dz = pos[self.el_idx, 1] - z_az
+            self.el_dz = float(dz[0])
+            if not np.allclose(dz, self.el_dz) or abs(self.el_dz) > 1.0 + 1e-9:
+                raise ConfigError(f"layout {layout.name}: elevation channels need one row within lambda/2")
+        self.n_fft_az = max(config.angle_fft, 1 << (self.n_az - 1).bit_length())
+        # CFAR training ring (offsets) for OS and for the ring size in CA
+        gr, gd = config.guard
+        tr, td = config.train
+        dd, dr = np.meshgrid(np.arange(-(gd + td), gd + td + 1), np.arange(-(gr + tr), gr + tr + 1),
+                             indexing="ij")
+        ring = (np.abs(dd) > gd) | (np.abs(dr) > gr)
+        self.ring_d = dd[ring]
+        self.ring_r = dr[ring]
+        self.outer = (2 * (gd + td) + 1, 2 * (gr + tr) + 1)
+        self.inner = (2 * gd + 1, 2 * gr + 1)
+        self.thr = 10 ** (config.threshold_db / 10)
+        self.os_k = int(config.os_rank * (len(self.ring_d) - 1))
+
+    # ---------------------------------------------------------------------------------------------
+    def range_doppler(self, cube: np.ndarray) -> np.ndarray:
+        """complex64 (D, V, R) range-Doppler spectra of a (loops, virtual, samples) cube."""
+        if cube.shape != (self.L, self.V, self.N):
+            raise ConfigError(f"cube shape {cube.shape} does not match the cfg {(self.L, self.V, self.N)}")
+        x = cube * self.win_r
+        x = sfft.fft(x, n=self.NR, axis=2, workers=1, overwrite_x=True)
+        if self.config.clutter_removal:
+            x -= x.mean(axis=0, keepdims=True)
+        x *= self.win_d[:, None, None]
+        return sfft.fft(x, axis=0, workers=1, overwrite_x=True)
+
+    def detection_map(self, spec: np.ndarray) -> np.ndarray:
+        """float32 (D, R) power summed over virtual channels."""
+        f = spec.view(np.float32)
+        p = np.einsum("dvr,dvr->dr", f, f)
+        return p[:, 0::2] + p[:, 1::2]
+
+    def ca_noise(self, power: np.ndarray) -> np.ndarray:
+        """CA-CFAR noise: mean of the training ring around every cell (Doppler cyclic)."""
+        mode = ("wrap", "nearest")
+        so = ndimage.uniform_filter(power, self.outer, mode=mode) * (self.outer[0] * self.outer[1])
+        si = ndimage.uniform_filter(power, self.inner, mode=mode) * (self.inner[0] * self.inner[1])
+        return np.maximum(so - si, 0) / len(self.ring_d)
+
+    def process(self, cube: np.ndarray, keep_maps: bool = False) -> DspResult:
+        """Points of one frame from a complex (loops, virtual, samples) ADC cube."""
+        cfg = self.config
+        spec = self.range_doppler(cube)
+        power = self.detection_map(spec)
+        D = self.L
+        noise = self.ca_noise(power)
+        cand = power > self.thr * noise
+        if cfg.cfar == "os":  # CA is only a pre-filter here (10 dB slack), OS decides
+            cand = power > (self.thr / 10.0) * noise
+        cand[:, : self.r_lo] = False
+        cand[:, self.r_hi:] = False
+        if cfg.peak_grouping:
+            cand &= power >= ndimage.maximum_filter(power, size=3, mode=("wrap", "nearest"))
+        d, r = np.nonzero(cand)
+        if cfg.cfar == "os" and len(d):
+            d, r, nz = self._os_filter(power, d, r)
+        else:
+            nz = noise[d, r]
+        p = power[d, r]
+        if len(d) > cfg.max_points:
+            keep = np.argsort(p / nz)[::-1][: cfg.max_points]
+            keep.sort()
+            d, r, p, nz = d[keep], r[keep], p[keep], nz[keep]
+        points = self._points(spec, power, d, r, p, nz) if len(d) else empty_points()
+        return DspResult(points, np.stack([d, r], axis=1), power if keep_maps else None,
+                         noise if keep_maps else None)
+
+    def _os_filter(self, power, d, r):
+        """Ordered-statistic CFAR at candidate cells: noise = os_rank quantile of the ring."""
+        dd = (d[:, None] + self.ring_d[None, :]) % self.L
+        rr = np.clip(r[:, None] + self.ring_r[None, :], 0, power.shape[1] - 1)
+        vals = power[dd, rr]
+        nz = np.partition(vals, self.os_k, axis=1)[:, self.os_k]
+        ok = power[d, r] > self.thr * nz
+        return d[ok], r[ok], nz[ok]
+
+    def _points(self, spec, power, d, r, p, nz) -> np.ndarray:
+        cfg = self.config
+        ds = self.d_signed[d]
+        y = spec[d, :, r]                                                     # (K, V)
+        # TDM-MIMO: slot k fires k*Tc after slot 0; remove the Doppler phase it accumulated
+        y = y * np.exp(-2j * np.pi * np.outer(ds, self.slot) / (self.L * self.T)).astype(np.complex64)
+        if self.cal is not None:
+            y = y * self.cal
+        a = y[:, self.az_idx] @ self.az_map                                   # (K, n_az)
+        s = np.abs(sfft.fft(a, n=self.n_fft_az, axis=1, workers=1))
+        k = np.argmax(s, axis=1)
+        idx = np.arange(len(k))
+        lm = np.log(s[idx, (k - 1) % self.n_fft_az] + 1e-12)
+        l0 = np.log(s[idx, k] + 1e-12)
+        lp = np.log(s[idx, (k + 1) % self.n_fft_az] + 1e-12)
+        den = lm - 2 * l0 + lp
+        delta = np.where(den < 0, 0.5 * (lm - lp) / np.where(den < 0, den, -1), 0.0)
+        f = (k + delta) / self.n_fft_az
+        f = np.where(f >= 0.5, f - 1.0, f)
+        ux = np.clip(-2.0 * f, -1.0, 1.0)                                     # phase -pi x u_x
+        uz = np.zeros_like(ux)
+        if cfg.elevation and len(self.el_idx):
+            steer = np.exp(1j * np.pi * np.outer(ux, self.pos[:, 0])).astype(np.complex64)
+            w = y * steer
+            e = w[:, self.el_idx].sum(axis=1)
+            az = w[:, self.az_idx].sum(axis=1)
+            uz = np.clip(-np.angle(e * np.conj(az)) / (np.pi * self.el_dz), -1.0, 1.0)
+        norm = np.hypot(ux, uz)
+        scale = np.where(norm > 1.0, 1.0 / np.maximum(norm, 1e-12), 1.0)
+        ux, uz = ux * scale, uz * scale
+        uy = np.sqrt(np.maximum(0.0, 1.0 - ux * ux - uz * uz))
+        # sub-bin range and Doppler from a parabola through the log power
+        rng = (r + self._parabola(power, d, r, axis=1)) * self.range_step - cfg.range_bias_m
+        dop = (ds + self._parabola(power, d, r, axis=0)) * self.doppler_step
+        out = np.empty((len(d), 5), dtype=np.float32)
+        out[:, 0] = rng * ux
+        out[:, 1] = rng * uy
+        out[:, 2] = rng * uz
+        out[:, 3] = dop
+        out[:, 4] = 10 * np.log10(np.maximum(p, 1e-30) / np.maximum(nz, 1e-30))
+        return out
+
+    @staticmethod
+    def _parabola(power, d, r, axis: int) -> np.ndarray:
+        D, R = power.shape
+        if axis == 1:
+            lm = power[d, np.clip(r - 1, 0, R - 1)]
+            lp = power[d, np.clip(r + 1, 0, R - 1)]
+        else:
+            lm = power[(d - 1) % D, r]
+            lp = power[(d + 1) % D, r]
+        lm, l0, lp = np.log(lm + 1e-30), np.log(power[d, r] + 1e-30), np.log(lp + 1e-30)
+        den = lm - 2 * l0 + lp
+        return np.clip(np.where(den < 0, 0.5 * (lm - lp) / np.where(den < 0, den, -1), 0.0), -0.5, 0.5)
+
+
+def make_dsp(cfg, layout: str | AntennaLayout = "4lane", antenna: AntennaLayout = AWR2243BOOST,
+             **overrides) -> tuple[FrameGeometry, RadarDsp]:
+    """FrameGeometry and RadarDsp for a parsed .cfg (drivers.ti.cfg.RadarCfg)."""
+    geom = FrameGeometry.from_chirp(cfg.chirp, layout)
+    return geom, RadarDsp(cfg.chirp, geom, DspConfig.from_cfg(cfg, **overrides), antenna)
+
+
+__all__ = ["DspConfig", "DspResult", "RadarDsp", "make_dsp"]
