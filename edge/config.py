@@ -78,15 +78,17 @@ class CameraSection:
 class SimSection:
     """The simulated sensors: a scenario played over wall-clock time.
 
-    Both processes derive scenario time from the shared clock, t = now mod period_s, so
-    they see the same world; each samples it at its own frame phase.
+    Both processes derive scenario time from the shared clock (time.time()), so they see
+    the same world; each samples it at its own frame phase.
     """
 
     seed: int = _opt(1, lo=0)
     mode: str = _opt("mixed", choices=("easy", "hard", "mixed"))
     rate_hz: float = _opt(20.0, lo=0.0, lo_open=True, hi=1000.0)
     phase_s: float = _opt(0.0, lo=0.0, hi=10.0, doc="frame phase offset on the shared clock, s")
-    period_s: float = _opt(60.0, lo=0.0, lo_open=True, doc="scenario time wraps after this, s")
+    view: str = _opt("auto", choices=("auto", "ego", "cav"),
+                     doc="which simulated vehicle this process is; auto: cav for role cav, else ego")
+    time_offset_s: float = _opt(0.0, doc="scenario time = shared clock + this, s")
 
 
 @dataclass(frozen=True)
@@ -112,6 +114,8 @@ class EgoSection:
     link_timeout_s: float = _opt(0.5, lo=0.0, lo_open=True, hi=60.0,
                                  doc="a CAV with no frame for this long is flagged lost")
     history: int = _opt(16, lo=1, hi=1024, doc="CAV frames kept per sender (keep-newest ring)")
+    wait_s: float = _opt(0.02, lo=0.0, hi=1.0,
+                         doc="live only: wait this long at most for a CAV frame closer in time")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,107 @@
+"""`mmatch run --config cfg/vehicle.toml`: the vehicle service (CAV, Ego or both)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+HELP = "run the vehicle service: sensors -> CAV/Ego loop -> Zenoh, with field logging"
+
+log = logging.getLogger(__name__)
+
+
+def add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", "-c", required=True, help="vehicle config (TOML), e.g. cfg/vehicle-cav.toml")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one config value (TOML syntax for the value; repeatable)")
+    p.add_argument("--log-dir", help="shorthand for --set log.dir=DIR")
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_common(p)
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """["a.b=1", "c.d=x"] -> {"a": {"b": 1}, "c": {"d": "x"}} (TOML values, else strings)."""
+    import tomllib
+
+    from mmatch.errors import ConfigError
+
+    out: dict = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        parts = key.strip().split(".")
+        if not sep or len(parts) != 2 or not all(parts):
+            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE")
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw
+        out.setdefault(parts[0], {})[parts[1]] = value
+    return out
+
+
+def load_config(args: argparse.Namespace, extra: dict | None = None):
+    from edge import config
+
+    overrides = parse_overrides(args.set)
+    if getattr(args, "log_dir", None):
+        overrides.setdefault("log", {})["dir"] = args.log_dir
+    if extra:
+        overrides = config.merge(overrides, extra)
+    cfg = config.load(args.config, overrides)
+    config.log_effective(cfg)
+    return cfg
+
+
+def run_service(cfg, *, duration: float | None = None, process: bool = True) -> int:
+    """Open everything the config names, run the loop until SIGTERM/SIGINT/duration, close."""
+    import contextlib
+    import signal
+    import threading
+
+    from edge import config as config_mod
+    from edge.health import Notifier
+    from edge.loop import VehicleLoop
+    from edge.pipeline import default_pipeline
+    from edge.recorder import Recorder
+    from edge.sources import open_camera, open_radar
+    from edge.transport import Transport
+
+    pipeline = default_pipeline(need_fuse=cfg.is_ego) if process else None
+    notifier = Notifier()
+    with contextlib.ExitStack() as stack:
+        recorder = None
+        if cfg.log.dir:
+            recorder = stack.enter_context(Recorder(cfg.log, prefix=f"{cfg.vehicle.id}",
+                                                    config_text=config_mod.to_toml(cfg)))
+        transport = stack.enter_context(Transport(cfg.zenoh)) if process else None
+        radar = open_radar(cfg)
+        stack.callback(radar.close)
+        camera = open_camera(cfg, radar=radar)
+        stack.callback(camera.close)
+        stack.callback(notifier.close)
+        loop = VehicleLoop(cfg, radar, camera, pipeline, transport=transport, recorder=recorder,
+                           notifier=notifier, process=process)
+
+        def on_signal(signum: int, _frame: object) -> None:
+            log.info("signal %d: stopping", signum)
+            loop.stop.set()
+
+        old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+        stack.callback(lambda: [signal.signal(s, h) for s, h in old.items()])
+        if duration is not None:
+            timer = threading.Timer(duration, loop.stop.set)
+            timer.daemon = True
+            timer.start()
+            stack.callback(timer.cancel)
+        rc = loop.run()
+        if loop.node is not None:
+            log.info("summary: %s", loop.node.summary())
+    return rc
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = load_config(args)
+    return run_service(cfg, duration=args.duration)

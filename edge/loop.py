@@ -1,0 +1,288 @@
+"""The live vehicle loop: reader threads per sensor, bounded queues, the per-frame Node.
+
+One thread per sensor reads its source into a bounded queue that keeps the newest items
+(a slow loop drops old frames, counted; a lossless replay source blocks instead). The
+main thread takes each radar frame, attaches the camera detections closest in time,
+and hands it to the `Node`. A sensor error (unplugged serial port, camera gone) is logged
+and counted; the reader closes the source, waits `reconnect_s` and opens it again, while
+the rest keeps running. Health goes to the log, to systemd ($NOTIFY_SOCKET) and to Zenoh.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from edge import keys, logschema
+from edge.config import VehicleConfig
+from edge.health import Notifier, RateCounter, format_status, watchdog_interval
+from edge.logschema import SensorFrame
+from edge.node import Node
+from edge.pipeline import Pipeline
+from edge.sources.base import CameraSource, EndOfStream, RadarSource
+from edge.transport import KeepNewest
+from mmatch.errors import DeviceError, MMatchError
+from mmatch.types import Detections, RadarFrame
+
+log = logging.getLogger(__name__)
+
+
+class _LosslessQueue:
+    """A blocking bounded queue with the KeepNewest reading interface (for replay)."""
+
+    def __init__(self, maxlen: int, stop: threading.Event) -> None:
+        self._q: queue.Queue = queue.Queue(maxlen)
+        self._stop = stop
+        self.dropped = 0
+
+    def put(self, item: Any) -> None:
+        while not self._stop.is_set():
+            try:
+                self._q.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+
+    def get(self, timeout: float | None = None) -> Any:
+        try:
+            return self._q.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def __len__(self) -> int:
+        return self._q.qsize()
+
+
+class CameraHistory:
+    """The last few detections; picks the one closest in time to a radar stamp."""
+
+    def __init__(self, maxlen: int = 8) -> None:
+        self._items: collections.deque[Detections] = collections.deque(maxlen=maxlen)
+        self._lock = threading.Lock()
+
+    def put(self, det: Detections) -> None:
+        with self._lock:
+            self._items.append(det)
+
+    def closest(self, stamp: float, tolerance: float) -> Detections | None:
+        with self._lock:
+            best = min(self._items, key=lambda d: abs(d.stamp - stamp), default=None)
+        if best is None or not abs(best.stamp - stamp) <= tolerance:
+            return None
+        return best
+
+
+class SensorReader(threading.Thread):
+    """Reads one source forever, reopening it after errors, into `sink`."""
+
+    def __init__(self, name: str, source: RadarSource | CameraSource, sink: Callable[[Any], None],
+                 stop: threading.Event, reconnect_s: float, timeout: float = 0.2) -> None:
+        super().__init__(name=f"reader-{name}", daemon=True)
+        self.sensor = name
+        self.source = source
+        self.sink = sink
+        self.stop_event = stop
+        self.reconnect_s = reconnect_s
+        self.timeout = timeout
+        self.frames = RateCounter()
+        self.errors = 0
+        self.reopens = 0
+        self.ended = threading.Event()
+        self.opened = False
+
+    def run(self) -> None:
+        while not self.stop_event.is_set():
+            try:
+                if not self.opened:
+                    self.source.open()
+                    self.opened = True
+                    if self.reopens or self.errors:
+                        log.info("%s: reopened after %d error(s)", self.sensor, self.errors)
+                item = self.source.read(self.timeout)
+            except EndOfStream:
+                log.info("%s: end of stream", self.sensor)
+                self.ended.set()
+                break
+            except (DeviceError, OSError, MMatchError) as exc:
+                self._fault(exc)
+                continue
+            except Exception as exc:  # a backend bug must not end the service
+                log.exception("%s: unexpected error", self.sensor)
+                self._fault(exc)
+                continue
+            if item is not None:
+                self.frames.add()
+                self.sink(item)
+        self._close()
+
+    def _fault(self, exc: BaseException) -> None:
+        self.errors += 1
+        log.warning("%s: %s; reopening in %.1f s", self.sensor, exc, self.reconnect_s)
+        self._close()
+        self.reopens += 1
+        self.stop_event.wait(self.reconnect_s)
+
+    def _close(self) -> None:
+        try:
+            self.source.close()
+        except Exception as exc:
+            log.debug("%s: close failed: %s", self.sensor, exc)
+        self.opened = False
+
+
+class VehicleLoop:
+    """Sensors -> Node -> Zenoh/log, until `stop` is set (or a finite source ends)."""
+
+    def __init__(self, cfg: VehicleConfig, radar: RadarSource, camera: CameraSource,
+                 pipeline: Pipeline | None, *, transport: Any = None, recorder: Any = None,
+                 notifier: Notifier | None = None, process: bool = True) -> None:
+        self.cfg = cfg
+        self.radar = radar
+        self.camera = camera
+        self.transport = transport
+        self.recorder = recorder
+        self.notifier = notifier or Notifier()
+        self.process = process
+        self.stop = threading.Event()
+        lossless = radar.lossless
+        self.radar_q = _LosslessQueue(cfg.loop.queue_size, self.stop) if lossless else \
+            KeepNewest(cfg.loop.queue_size)
+        self.cam_hist = CameraHistory()
+        self.drops: collections.Counter = collections.Counter()
+        self.readers: list[SensorReader] = []
+        self.seq = 0
+        self.rates = {"radar": RateCounter(), "frames": RateCounter(), "fused": RateCounter()}
+        self.node: Node | None = None
+        if process:
+            assert pipeline is not None
+            publish = transport.put if transport is not None else None
+            height = getattr(radar, "radar_height", cfg.radar.height_m)
+            self.node = Node(cfg, pipeline, camera.camera, height, publish=publish, recorder=recorder,
+                             wait_s=cfg.ego.wait_s)
+            self.node.on_result = self._on_result
+        if recorder is not None and cfg.log.raw:
+            radar.raw_sink = lambda data: recorder.write(logschema.RAW_UART, data)
+
+    def _on_result(self, msg: dict) -> None:
+        if msg["status"] == "fused":
+            self.rates["fused"].add()
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> int:
+        """Run until stopped; returns 0. Call from the main thread."""
+        cfg = self.cfg
+        if self.transport is not None and self.node is not None and cfg.is_ego:
+            if cfg.ego.cavs and len(cfg.ego.cavs) == 1:
+                keyexpr = keys.shared(cfg.ego.cavs[0])
+            else:
+                keyexpr = keys.all_of("shared")
+            self.transport.subscribe(keyexpr, "shared", self.node.on_shared,
+                                     vehicles=list(cfg.ego.cavs) or None)
+        readers = [SensorReader("radar", self.radar, self.radar_q.put, self.stop, cfg.radar.reconnect_s,
+                                cfg.radar.read_timeout_s)]
+        if cfg.camera.source not in ("none",):
+            readers.append(SensorReader("camera", self.camera, self.cam_hist.put, self.stop,
+                                        cfg.camera.reconnect_s))
+        self.readers = readers
+        for r in readers:
+            r.start()
+        wd = watchdog_interval() if cfg.health.watchdog else None
+        last_wd = last_status = time.monotonic()
+        self.notifier.ready(f"{cfg.vehicle.role} {cfg.vehicle.id} running")
+        log.info("loop running: role=%s id=%s radar=%s camera=%s", cfg.vehicle.role, cfg.vehicle.id,
+                 cfg.radar.source, cfg.camera.source)
+        try:
+            while not self.stop.is_set():
+                rf: RadarFrame | None = self.radar_q.get(0.1)
+                if rf is not None:
+                    self.rates["radar"].add()
+                    self._step(rf)
+                elif readers[0].ended.is_set() and len(self.radar_q) == 0:
+                    log.info("radar source ended; stopping")
+                    break
+                now = time.monotonic()
+                if wd is not None and now - last_wd >= wd:
+                    self.notifier.watchdog()
+                    last_wd = now
+                if now - last_status >= cfg.loop.status_interval_s:
+                    self._status()
+                    last_status = now
+                if self.recorder is not None:
+                    self.recorder.tick()
+        finally:
+            self.stop.set()
+            self.notifier.stopping()
+            for r in readers:
+                r.join(timeout=5.0)
+            self._status()
+        return 0
+
+    def _step(self, rf: RadarFrame) -> None:
+        det = self.cam_hist.closest(rf.stamp, self.cfg.loop.camera_tolerance_s)
+        if det is None:
+            boxes, feats, cam_stamp = np.zeros((0, 6), np.float32), np.zeros((0, 32), np.float32), np.nan
+        else:
+            boxes, feats, cam_stamp = det.boxes, det.features, det.stamp
+        self.seq += 1
+        frame = SensorFrame(seq=self.seq, stamp=float(rf.stamp), points=np.asarray(rf.points, np.float32),
+                            boxes=np.asarray(boxes, np.float32).reshape(-1, 6),
+                            features=np.asarray(feats, np.float32).reshape(-1, 32),
+                            camera_stamp=float(cam_stamp), frame_number=int(rf.frame_number),
+                            host_time=float(rf.host_time))
+        self.rates["frames"].add()
+        if self.node is None:
+            if self.recorder is not None:
+                self.recorder.write(logschema.POINTS, logschema.points_to_json(frame.points, frame.stamp),
+                                    stamp=frame.stamp)
+                self.recorder.write(logschema.FRAME, logschema.frame_to_json(frame), stamp=frame.stamp)
+            return
+        try:
+            self.node.process(frame)
+        except MMatchError as exc:  # a frame the pipeline cannot handle costs that frame only
+            log.warning("frame %d dropped: %s", frame.seq, exc)
+            self.drops["pipeline"] += 1
+
+    def health(self) -> dict:
+        """Rates (per s since the last call), drops and counters."""
+        rates = {k: round(v.rate(), 2) for k, v in self.rates.items()}
+        drops = dict(self.drops)
+        drops["radar_queue"] = self.radar_q.dropped
+        counters: dict[str, int] = {}
+        for r in self.readers:
+            drops[f"{r.sensor}_errors"] = r.errors
+            for k, v in r.source.counters().items():
+                counters[f"{r.sensor}_{k}"] = v
+        if self.transport is not None:
+            for k, v in self.transport.drops.snapshot().items():
+                drops[f"zenoh_{k}"] = v
+        out: dict[str, Any] = {"vehicle": self.cfg.vehicle.id, "time": time.time(), "rates": rates,
+                               "drops": drops, "counters": counters}
+        if self.node is not None:
+            out["node"] = self.node.summary()
+        if self.recorder is not None:
+            out["recorder"] = self.recorder.stats()
+        return out
+
+    def _status(self) -> None:
+        h = self.health()
+        links = ""
+        if self.node is not None and self.node.links:
+            links = " ".join(f"{n}:{'up' if s.up else 'LOST'}" for n, s in self.node.links.items())
+        text = format_status(h["rates"], {k: v for k, v in h["drops"].items() if v}, links)
+        log.info("status: %s", text)
+        self.notifier.status(text)
+        if self.transport is not None:
+            try:
+                self.transport.put(keys.health(self.cfg.vehicle.id), json.dumps(h).encode())
+            except Exception as exc:
+                log.debug("health publish failed: %s", exc)
+        if self.recorder is not None:
+            self.recorder.write(logschema.HEALTH, h)

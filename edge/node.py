@@ -1,0 +1,253 @@
+"""One vehicle's per-frame processing, the part live runs and replays share.
+
+`Node.process(frame)` runs the CAV side on the vehicle's own sensor frame
+(process_view -> encode -> publish) and, for an Ego, pairs the result with the CAV
+frame closest in capture time within `ego.pair_tolerance_s` from each CAV, fuses, and
+publishes the fused result (`mmatch/v1/<id>/fused`, JSON). `Node.on_shared(vehicle,
+payload)` takes a received shared frame.
+
+Link loss: a CAV whose newest frame is older (in capture time) than `ego.link_timeout_s`
+is flagged lost; the Ego then publishes its own perception with `single_vehicle: true`
+and fuses again as soon as frames return. Everything that decides a result is judged on
+capture stamps, not the wall clock, and the inputs are logged in the order the decision
+saw them, so replaying a log through a Node reproduces the live results.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from edge import keys, logschema
+from edge.config import VehicleConfig
+from edge.logschema import SensorFrame
+from edge.pipeline import Pipeline
+from mmatch.errors import DecodeError
+from mmatch.types import CameraModel
+
+log = logging.getLogger(__name__)
+
+PublishFn = Callable[[str, bytes], None]
+
+
+@dataclass
+class LinkState:
+    """What the Ego knows about one CAV's link."""
+
+    up: bool = False
+    newest_stamp: float = -np.inf
+    frames: int = 0
+    gaps: int = 0
+    ever_up: bool = False
+
+
+@dataclass
+class NodeCounters:
+    frames: int = 0
+    published_shared: int = 0
+    fused: int = 0          # at least one CAV frame fused
+    paired: int = 0         # at least one CAV frame given to fuse (fused or no-estimate)
+    single: int = 0         # own perception only
+    no_estimate: int = 0
+    rx: int = 0
+    rx_rejected: dict[str, int] = field(default_factory=lambda: collections.Counter())
+
+
+def _jsonable_matrix(T: Any) -> list | None:
+    return None if T is None else np.asarray(T, dtype=np.float64).reshape(4, 4).tolist()
+
+
+class Node:
+    """The per-frame CAV/Ego logic of one vehicle (thread-safe)."""
+
+    def __init__(self, cfg: VehicleConfig, pipeline: Pipeline, camera: CameraModel,
+                 radar_height: float, *, publish: PublishFn | None = None, recorder: Any = None,
+                 wait_s: float = 0.0, clock: Callable[[], float] = time.time) -> None:
+        self.cfg = cfg
+        self.id = cfg.vehicle.id
+        self.pipeline = pipeline
+        self.camera = camera
+        self.radar_height = float(radar_height)
+        self.publish = publish
+        self.recorder = recorder
+        self.wait_s = wait_s
+        self.clock = clock
+        self.counters = NodeCounters()
+        self.links: dict[str, LinkState] = {c: LinkState() for c in cfg.ego.cavs}
+        self._inbox: dict[str, collections.deque] = {}
+        self._cond = threading.Condition()
+        self.last_result: dict | None = None
+        self.on_result: Callable[[dict], None] | None = None
+
+    # ------------------------------------------------------------------ input
+    def on_shared(self, vehicle: str, payload: bytes) -> None:
+        """A shared frame from `vehicle` (raises DecodeError for a bad one, after counting)."""
+        if vehicle == self.id:
+            return
+        if self.cfg.ego.cavs and vehicle not in self.cfg.ego.cavs:
+            self.counters.rx_rejected["foreign"] += 1
+            return
+        try:
+            frame = self.pipeline.decode(payload)
+        except DecodeError:
+            self.counters.rx_rejected["malformed"] += 1
+            raise
+        if frame.sender != vehicle:
+            self.counters.rx_rejected["sender_mismatch"] += 1
+            raise DecodeError(f"frame from {frame.sender!r} published under {vehicle!r}")
+        if not np.isfinite(frame.stamp):
+            self.counters.rx_rejected["bad_stamp"] += 1
+            raise DecodeError("non-finite stamp")
+        with self._cond:
+            if self.recorder is not None:
+                self.recorder.write(logschema.SHARED_RX_PREFIX + vehicle, payload, stamp=frame.stamp)
+            box = self._inbox.get(vehicle)
+            if box is None:
+                box = self._inbox[vehicle] = collections.deque(maxlen=self.cfg.ego.history)
+            box.append(frame)
+            self.counters.rx += 1
+            self._cond.notify_all()
+
+    # ------------------------------------------------------------------ per frame
+    def _log_frame(self, frame: SensorFrame) -> None:
+        if self.recorder is not None:
+            self.recorder.write(logschema.POINTS, logschema.points_to_json(frame.points, frame.stamp),
+                                stamp=frame.stamp)
+            self.recorder.write(logschema.FRAME, logschema.frame_to_json(frame), stamp=frame.stamp)
+
+    def process(self, frame: SensorFrame) -> dict | None:
+        """Run one own sensor frame through the pipeline; the fused message for an Ego."""
+        self.counters.frames += 1
+        own, timings = self.pipeline.process_view(
+            frame.points, frame.boxes, frame.features, self.camera, self.radar_height, frame.stamp,
+            sender=self.id, seq=frame.seq)
+        if self.cfg.is_cav:
+            data = self.pipeline.encode(own)
+            if self.publish is not None:
+                self.publish(keys.shared(self.id), data)
+                self.counters.published_shared += 1
+            if not self.cfg.is_ego:
+                self._log_frame(frame)
+            if self.recorder is not None:
+                self.recorder.write(logschema.SHARED_TX, data, stamp=frame.stamp)
+        if not self.cfg.is_ego:
+            return None
+        choice = self._pair(frame)
+        return self._fuse(frame, own, timings, choice)
+
+    def _wanted(self, stamp: float) -> bool:
+        """True while some live CAV may still deliver a frame closer to `stamp`."""
+        horizon = stamp - self.cfg.ego.pair_tolerance_s / 2
+        for name, link in self.links.items():
+            if not link.up:
+                continue
+            box = self._inbox.get(name)
+            if not box or box[-1].stamp < horizon:
+                return True
+        return False
+
+    def _pair(self, frame: SensorFrame) -> dict[str, Any]:
+        """The CAV frame closest in capture time to `frame`, per CAV (logged at decision)."""
+        tol = self.cfg.ego.pair_tolerance_s
+        with self._cond:
+            if self.wait_s > 0:
+                deadline = time.monotonic() + self.wait_s
+                while self._wanted(frame.stamp):
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        break
+                    self._cond.wait(left)
+            self._log_frame(frame)  # the decision point: replay sees exactly these inputs
+            choice: dict[str, Any] = {}
+            for name in sorted(set(self._inbox) | set(self.links)):
+                link = self.links.setdefault(name, LinkState())
+                box = self._inbox.get(name, ())
+                newest = max((f.stamp for f in box), default=-np.inf)
+                up = newest >= frame.stamp - self.cfg.ego.link_timeout_s
+                if up != link.up:
+                    if up:
+                        log.info("link to %s %s", name, "resumed" if link.ever_up else "up")
+                        link.ever_up = True
+                    else:
+                        link.gaps += 1
+                        log.warning("link to %s lost (newest frame %.3f s before own frame)",
+                                    name, frame.stamp - newest)
+                    link.up = up
+                link.newest_stamp = newest
+                best = min(box, key=lambda f: abs(f.stamp - frame.stamp), default=None)
+                if best is not None and abs(best.stamp - frame.stamp) <= tol and up:
+                    choice[name] = best
+            return choice
+
+    def _fuse(self, frame: SensorFrame, own: Any, timings: dict[str, float],
+              choice: dict[str, Any]) -> dict:
+        cavs = []
+        objects: list[np.ndarray] = []
+        fuse_ms: dict[str, float] = {}
+        results = []
+        for name, other in choice.items():
+            t0 = time.perf_counter()
+            res = self.pipeline.fuse(own, other)
+            fuse_ms[name] = (time.perf_counter() - t0) * 1e3
+            results.append((name, other, res))
+            cavs.append({"id": name, "seq": int(other.seq), "stamp": float(other.stamp),
+                         "dt": float(other.stamp - frame.stamp), "status": res.status,
+                         "reason": res.reason, "T_ego_cav": _jsonable_matrix(res.T_ego_cav),
+                         "pairs": np.asarray(res.pairs).reshape(-1, 2).astype(int).tolist()})
+        fused = [r for r in results if r[2].status == "fused"]
+        if fused:
+            status = "fused"
+            first = np.asarray(fused[0][2].objects, np.float64).reshape(-1, 4)
+            objects.append(first)
+            for _, _, r in fused[1:]:
+                o = np.asarray(r.objects, np.float64).reshape(-1, 4)
+                objects.append(o[o[:, 2] == 1])
+        else:
+            single = self.pipeline.fuse(own, None)
+            status = "no-estimate" if results else "single"
+            objects.append(np.asarray(single.objects, np.float64).reshape(-1, 4))
+        c = self.counters
+        c.fused += bool(fused)
+        c.paired += bool(results)
+        c.single += not results
+        c.no_estimate += bool(results) and not fused
+        obj = np.concatenate(objects) if objects else np.zeros((0, 4))
+        msg = {
+            "vehicle": self.id, "seq": int(frame.seq), "stamp": float(frame.stamp),
+            "status": status, "single_vehicle": not fused,
+            "links": {n: ("up" if s.up else "lost") for n, s in sorted(self.links.items())},
+            "gap": any(not s.up for s in self.links.values()),
+            "cavs": cavs,
+            "objects": np.round(obj, 6).tolist(),
+            "timings_ms": {**{k: float(v) for k, v in timings.items()},
+                           **{f"fuse:{k}": v for k, v in fuse_ms.items()}},
+        }
+        msg["latency_ms"] = (self.clock() - frame.stamp) * 1e3
+        data = json.dumps(msg, separators=(",", ":")).encode()
+        if self.publish is not None:
+            self.publish(keys.fused(self.id), data)
+        if self.recorder is not None:
+            self.recorder.write(logschema.FUSED, msg, stamp=frame.stamp)
+        self.last_result = msg
+        if self.on_result is not None:
+            self.on_result(msg)
+        return msg
+
+    def summary(self) -> dict[str, Any]:
+        c = self.counters
+        return {"frames": c.frames, "fused": c.fused, "paired": c.paired, "single": c.single,
+                "no_estimate": c.no_estimate, "rx": c.rx, "rx_rejected": dict(c.rx_rejected),
+                "links": {n: {"up": s.up, "gaps": s.gaps} for n, s in self.links.items()}}
+
+
+def comparable(msg: dict) -> dict:
+    """A fused message without its wall-clock fields (latency, stage timings)."""
+    return {k: v for k, v in msg.items() if k not in ("latency_ms", "timings_ms")}

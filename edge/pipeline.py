@@ -1,0 +1,47 @@
+"""The per-frame pipeline the vehicle service drives (the shared pipeline contract).
+
+CAV side `mmatch.cav.process.process_view`, wire codec `mmatch.codec.encode/decode`,
+Ego side `mmatch.fusion.fuse`. They are looked up when the service starts, so the edge
+package imports without them and a test can hand in its own `Pipeline`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from mmatch.errors import MMatchError
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """process_view(points, boxes, features, camera, radar_height, stamp, *, sender, seq)
+    -> (SharedFrame, {stage: ms}); encode(SharedFrame) -> bytes; decode(bytes) -> SharedFrame
+    (raises DecodeError); fuse(own, other | None) -> FusionResult."""
+
+    process_view: Callable[..., tuple[Any, dict[str, float]]]
+    encode: Callable[[Any], bytes]
+    decode: Callable[[bytes], Any]
+    fuse: Callable[..., Any]
+
+
+def _get(module: str, name: str) -> Callable:
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise MMatchError(f"pipeline: {module}.{name} is not available ({exc}); "
+                          "the vehicle service needs the CAV processing, codec and fusion modules") from exc
+
+
+def default_pipeline(*, need_fuse: bool = True) -> Pipeline:
+    """The product pipeline; `need_fuse=False` lets a CAV run without the fusion module."""
+    fuse = _get("mmatch.fusion", "fuse") if need_fuse else _no_fuse
+    return Pipeline(process_view=_get("mmatch.cav.process", "process_view"),
+                    encode=_get("mmatch.codec", "encode"), decode=_get("mmatch.codec", "decode"),
+                    fuse=fuse)
+
+
+def _no_fuse(*a: Any, **k: Any) -> Any:
+    raise MMatchError("fusion is not available in this role")

@@ -1,0 +1,112 @@
+"""Simulated sensors: `mmatch.sim.scenario` played over the shared clock.
+
+Frames come at `sim.rate_hz` on the grid k / rate + `sim.phase_s` of the shared clock
+(time.time()); every process that uses the same seed and mode sees the same world, each
+from its own vehicle (`sim.view`). A frame is rendered ahead of its capture time and
+delivered at it, as a sensor delivers what it captured. The camera of the same vehicle
+gets the detections of the same observation.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+from edge.config import VehicleConfig
+from edge.sources.base import CameraSource, RadarSource
+from edge.transport import KeepNewest
+from mmatch.types import CameraModel, Detections, RadarFrame
+
+log = logging.getLogger(__name__)
+
+
+def sim_view(cfg: VehicleConfig) -> str:
+    if cfg.sim.view != "auto":
+        return cfg.sim.view
+    return "cav" if cfg.vehicle.role == "cav" else "ego"
+
+
+class SimRadar(RadarSource):
+    """The radar of the simulated vehicle `sim_view(cfg)`."""
+
+    def __init__(self, cfg: VehicleConfig, *, clock=time.time, sleep=time.sleep, **kw) -> None:
+        from mmatch.sim.scenario import make_scenario
+
+        self.cfg = cfg
+        self.view = sim_view(cfg)
+        self.scenario = make_scenario(cfg.sim.seed, cfg.sim.mode)
+        self.period = 1.0 / cfg.sim.rate_hz
+        self._clock, self._sleep = clock, sleep
+        self._next: float | None = None
+        self._frame_number = 0
+        self.skipped = 0
+        self.camera_feed: KeepNewest[Detections] | None = None
+        self._closed = False
+
+    @property
+    def camera(self) -> CameraModel:
+        return self.scenario.camera_model(self.view)[0]
+
+    @property
+    def radar_height(self) -> float:
+        return self.scenario.mounts[self.view].radar_height
+
+    def _grid_after(self, t: float) -> float:
+        k = math.ceil((t - self.cfg.sim.phase_s) / self.period - 1e-9)
+        return k * self.period + self.cfg.sim.phase_s
+
+    def read(self, timeout: float) -> RadarFrame | None:
+        now = self._clock()
+        if self._next is None or self._next < now - self.period:
+            if self._next is not None:
+                self.skipped += 1
+            self._next = self._grid_after(now)
+        t = self._next
+        if t - now > timeout:
+            self._sleep(timeout)
+            return None
+        obs = self.scenario.observe(self.view, t + self.cfg.sim.time_offset_s)
+        wait = t - self._clock()
+        if wait > 0:
+            self._sleep(wait)
+        self._next = t + self.period
+        self._frame_number += 1
+        if self.camera_feed is not None:
+            self.camera_feed.put(Detections(boxes=obs.boxes, features=obs.features, stamp=t))
+        return RadarFrame(points=obs.points, stamp=t, frame_number=self._frame_number,
+                          host_time=self._clock())
+
+    def counters(self) -> dict[str, int]:
+        return {"frames": self._frame_number, "late_skips": self.skipped}
+
+    def close(self) -> None:
+        self._closed = True
+
+
+class SimCamera(CameraSource):
+    """The camera of the simulated vehicle: the detections of the radar's observation.
+
+    Pass the SimRadar as `radar=`; alone it renders its own observations at the same grid.
+    """
+
+    def __init__(self, cfg: VehicleConfig, *, radar: RadarSource | None = None, **kw) -> None:
+        self._own_radar: SimRadar | None = None
+        if isinstance(radar, SimRadar):
+            self._radar = radar
+        else:
+            self._own_radar = self._radar = SimRadar(cfg, **kw)
+        self._feed: KeepNewest[Detections] = KeepNewest(4)
+        self._radar.camera_feed = self._feed
+
+    @property
+    def camera(self) -> CameraModel:
+        return self._radar.camera
+
+    def read(self, timeout: float) -> Detections | None:
+        if self._own_radar is not None:
+            self._own_radar.read(timeout)
+        return self._feed.get(timeout)
+
+    def close(self) -> None:
+        self._feed.close()

@@ -1,0 +1,107 @@
+"""The per-frame Node: pairing by capture time, several CAVs, link loss and return, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from edge_fakes import FAKE, encode, process_view
+
+from edge import config, keys
+from edge.logschema import SensorFrame
+from edge.node import Node
+from edge.sources.base import default_camera
+from mmatch.errors import DecodeError
+
+
+def _cfg(role="ego", cavs=("cav1",), **ego):
+    return config.from_dict({"vehicle": {"id": "ego1", "role": role},
+                             "ego": {"cavs": list(cavs), "pair_tolerance_s": 0.06, "link_timeout_s": 0.5, **ego}})
+
+
+def _frame(seq, stamp):
+    pts = np.full((4, 5), seq, np.float32)
+    return SensorFrame(seq=seq, stamp=stamp, points=pts, boxes=np.zeros((0, 6), np.float32),
+                       features=np.zeros((0, 32), np.float32))
+
+
+def _cav_bytes(sender, seq, stamp):
+    sf, _ = process_view(np.full((2, 5), 100 + seq, np.float32), None, None, None, 1.0, stamp, sender=sender, seq=seq)
+    return encode(sf)
+
+
+def _node(cfg, published=None):
+    pub = (lambda k, d: published.append((k, d))) if published is not None else None
+    return Node(cfg, FAKE, default_camera(), 0.7, publish=pub)
+
+
+def test_pairs_with_the_closest_cav_frame_within_tolerance():
+    node = _node(_cfg())
+    for i, s in enumerate([9.90, 9.95, 10.00, 10.05]):
+        node.on_shared("cav1", _cav_bytes("cav1", i, s))
+    msg = node.process(_frame(1, 10.02))
+    assert msg["status"] == "fused" and not msg["single_vehicle"]
+    (c,) = msg["cavs"]
+    assert c["seq"] == 2 and c["dt"] == pytest.approx(-0.02)
+    assert msg["links"] == {"cav1": "up"} and msg["gap"] is False
+    # nothing within tolerance: own perception, flagged single
+    msg = node.process(_frame(2, 10.20))
+    assert msg["status"] == "single" and msg["single_vehicle"] and msg["cavs"] == []
+
+
+def test_several_cavs_at_once():
+    node = _node(_cfg(cavs=()))
+    node.on_shared("cav1", _cav_bytes("cav1", 1, 5.00))
+    node.on_shared("cav2", _cav_bytes("cav2", 7, 5.03))
+    node.on_shared("cav3", _cav_bytes("cav3", 2, 4.80))  # too old for the tolerance
+    msg = node.process(_frame(1, 5.01))
+    assert [c["id"] for c in msg["cavs"]] == ["cav1", "cav2"]
+    assert msg["status"] == "fused"
+    # own 3 objects + 2 from each fused CAV (source 1)
+    obj = np.array(msg["objects"])
+    assert (obj[:, 2] == 0).sum() == 3 and (obj[:, 2] == 1).sum() == 4
+
+
+def test_link_loss_is_flagged_and_fusion_resumes_without_restart():
+    published = []
+    node = _node(_cfg(), published)
+    statuses = []
+    t = 100.0
+    for k in range(60):  # 3 s at 20 Hz; the CAV is silent from 1.0 s to 2.0 s
+        stamp = t + 0.05 * k
+        if not (1.0 <= 0.05 * k < 2.0):
+            node.on_shared("cav1", _cav_bytes("cav1", k, stamp - 0.01))
+        msg = node.process(_frame(k, stamp))
+        statuses.append((round(0.05 * k, 2), msg["status"], msg["links"]["cav1"]))
+    lost = [s for s in statuses if s[2] == "lost"]
+    assert lost, "the gap must be flagged"
+    # lost only after link_timeout_s of silence, and only until the CAV returns
+    assert min(s[0] for s in lost) == pytest.approx(1.0 + 0.5, abs=0.051)
+    assert max(s[0] for s in lost) < 2.0
+    assert all(s[1] == "single" for s in statuses if 1.0 <= s[0] < 2.0)
+    assert all(s[1] == "fused" for s in statuses if s[0] >= 2.0)
+    assert node.links["cav1"].gaps == 1
+    fused_keys = {k for k, _ in published}
+    assert fused_keys == {keys.fused("ego1")}
+    assert len(published) == 60
+
+
+def test_bad_and_foreign_frames_are_dropped_and_counted():
+    node = _node(_cfg())
+    with pytest.raises(DecodeError):
+        node.on_shared("cav1", b"garbage")
+    with pytest.raises(DecodeError):
+        node.on_shared("cav1", _cav_bytes("cav9", 1, 1.0))  # sender does not match its key
+    node.on_shared("cav2", _cav_bytes("cav2", 1, 1.0))      # not one of ego.cavs
+    node.on_shared("ego1", _cav_bytes("ego1", 1, 1.0))      # our own echo
+    assert node.counters.rx == 0
+    assert node.counters.rx_rejected == {"malformed": 1, "sender_mismatch": 1, "foreign": 1}
+    assert node.process(_frame(1, 1.0))["status"] == "single"
+
+
+def test_cav_role_publishes_shared_frames():
+    published = []
+    node = Node(_cfg(role="cav"), FAKE, default_camera(), 0.7,
+                publish=lambda k, d: published.append((k, d)))
+    assert node.process(_frame(3, 2.0)) is None
+    assert published[0][0] == keys.shared("ego1")
+    assert FAKE.decode(published[0][1]).seq == 3
