@@ -1,0 +1,172 @@
+"""Settings of the CAV-side stages: one frozen dataclass per stage, nested in `CavConfig`.
+
+Defaults live here; `CavConfig.from_dict` builds one from a parsed config file and rejects
+unknown keys and impossible values with `ConfigError` naming the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from mmatch.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class EgoMotionConfig:
+    """Doppler ego-motion fit (RANSAC over 2-point sets, then least squares on the inliers).
+
+    threshold_mps: a point is stationary when |doppler residual| <= threshold, m/s, at boresight.
+    threshold_growth_mps: added to the threshold at |azimuth| = edge_az_deg, growing as
+        (|az| / edge_az)^2 (Doppler noise grows off boresight), m/s.
+    hypotheses: number of 2-point hypotheses drawn at once.
+    min_pair_sin: a hypothesis pair needs |sin(az_i - az_j)| above this (conditioning).
+    refine_iterations: least-squares / inlier re-selection rounds after RANSAC.
+    min_points: fewer finite points than this gives status "too-few-points".
+    min_bearing_spread_deg: azimuth spread (max - min) of the points / inliers below this
+        gives status "degenerate-bearing".
+    min_inliers: fewer stationary inliers than this gives status "no-consensus".
+    seed: seed of the hypothesis sampler (the fit is deterministic per frame).
+    """
+
+    threshold_mps: float = 0.35
+    threshold_growth_mps: float = 0.45
+    edge_az_deg: float = 60.0
+    hypotheses: int = 160
+    min_pair_sin: float = 0.08
+    refine_iterations: int = 3
+    min_points: int = 3
+    min_bearing_spread_deg: float = 3.0
+    min_inliers: int = 3
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class SeparationConfig:
+    """Frustum separation of vehicle points per camera box (paper, section "separation").
+
+    delta_d_m: fixed half-width of the depth window around the box depth, m.
+    depth_rel: extra half-width as a fraction of the depth (monocular depth error 5-15 %),
+        for the points projecting into the box (moving or not).
+    moving_depth_rel: the same for moving points in the box's bearing wedge; wider, since
+        a moving point in the wedge is strong evidence and depth errors reach 2 sigma (30 %).
+    box_margin_px: the box grows by this many pixels on every side before the tests.
+    bearing_margin_deg: the wedge and box also grow sideways by this angle (radar azimuth
+        noise, 0.3-2.5 deg); a box touching the image's left or right edge opens its wedge
+        to that side (the vehicle continues outside the image).
+    min_box_score: boxes scoring below this are ignored (not vehicles).
+    min_camera_z_m: points closer than this in front of the camera never project.
+    """
+
+    delta_d_m: float = 3.0
+    depth_rel: float = 0.15
+    moving_depth_rel: float = 0.3
+    box_margin_px: float = 8.0
+    bearing_margin_deg: float = 1.0
+    min_box_score: float = 0.0
+    min_camera_z_m: float = 0.5
+
+
+@dataclass(frozen=True)
+class ClusteringConfig:
+    """DBSCAN per vehicle over (x, y, velocity_scale * doppler residual).
+
+    eps_m: DBSCAN radius in the scaled space, m; min_samples: DBSCAN core size.
+    velocity_scale_s: metres per m/s of Doppler residual (points of one vehicle spread
+        in residual because its velocity projects differently across its angular extent).
+    """
+
+    eps_m: float = 3.0
+    min_samples: int = 1
+    velocity_scale_s: float = 0.25
+
+
+@dataclass(frozen=True)
+class BackgroundConfig:
+    """Background sketch: DBSCAN over stationary points, then a capped voxel grid.
+
+    eps_m / min_samples: DBSCAN in (x, y), m; points in no cluster (isolated clutter,
+        ghosts) are dropped.
+    voxel_m: voxel edge of the downsampling grid, m (points in a voxel -> their mean).
+    max_points: cap on sketch points (most-supported voxels kept) so the frame stays 5-9 KB.
+    """
+
+    eps_m: float = 3.0
+    min_samples: int = 2
+    voxel_m: float = 0.5
+    max_points: int = 600
+
+
+@dataclass(frozen=True)
+class CavConfig:
+    """Every CAV-side setting."""
+
+    egomotion: EgoMotionConfig = field(default_factory=EgoMotionConfig)
+    separation: SeparationConfig = field(default_factory=SeparationConfig)
+    clustering: ClusteringConfig = field(default_factory=ClusteringConfig)
+    background: BackgroundConfig = field(default_factory=BackgroundConfig)
+
+    def __post_init__(self) -> None:
+        _check(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "CavConfig":
+        """Build from {"egomotion": {...}, ...}; unknown keys raise ConfigError naming them."""
+        if not isinstance(data, dict):
+            raise ConfigError("cav: expected a mapping")
+        sections = {f.name: f.type for f in dataclasses.fields(cls)}
+        kwargs = {}
+        for name, value in data.items():
+            if name not in sections:
+                raise ConfigError(f"cav.{name}: unknown section")
+            sub_cls = _SECTIONS[name]
+            if not isinstance(value, dict):
+                raise ConfigError(f"cav.{name}: expected a mapping")
+            known = {f.name: f for f in dataclasses.fields(sub_cls)}
+            for key in value:
+                if key not in known:
+                    raise ConfigError(f"cav.{name}.{key}: unknown key")
+            try:
+                kwargs[name] = sub_cls(**{k: type(getattr(sub_cls(), k))(v) for k, v in value.items()})
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"cav.{name}: {exc}") from exc
+        return cls(**kwargs)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+_SECTIONS = {"egomotion": EgoMotionConfig, "separation": SeparationConfig,
+             "clustering": ClusteringConfig, "background": BackgroundConfig}
+
+
+def _check(cfg: CavConfig) -> None:
+    """Cross-field checks: fail at start, naming the key."""
+    positive = [("egomotion.threshold_mps", cfg.egomotion.threshold_mps),
+                ("egomotion.edge_az_deg", cfg.egomotion.edge_az_deg),
+                ("egomotion.hypotheses", cfg.egomotion.hypotheses),
+                ("egomotion.min_pair_sin", cfg.egomotion.min_pair_sin),
+                ("clustering.eps_m", cfg.clustering.eps_m),
+                ("clustering.min_samples", cfg.clustering.min_samples),
+                ("background.eps_m", cfg.background.eps_m),
+                ("background.min_samples", cfg.background.min_samples),
+                ("background.voxel_m", cfg.background.voxel_m),
+                ("background.max_points", cfg.background.max_points)]
+    non_negative = [("egomotion.threshold_growth_mps", cfg.egomotion.threshold_growth_mps),
+                    ("egomotion.refine_iterations", cfg.egomotion.refine_iterations),
+                    ("separation.delta_d_m", cfg.separation.delta_d_m),
+                    ("separation.depth_rel", cfg.separation.depth_rel),
+                    ("separation.moving_depth_rel", cfg.separation.moving_depth_rel),
+                    ("separation.bearing_margin_deg", cfg.separation.bearing_margin_deg),
+                    ("separation.box_margin_px", cfg.separation.box_margin_px),
+                    ("clustering.velocity_scale_s", cfg.clustering.velocity_scale_s)]
+    for key, value in positive:
+        if not value > 0:
+            raise ConfigError(f"cav.{key}: must be > 0, got {value}")
+    for key, value in non_negative:
+        if not value >= 0:
+            raise ConfigError(f"cav.{key}: must be >= 0, got {value}")
+    if cfg.egomotion.min_points < 3:
+        raise ConfigError(f"cav.egomotion.min_points: must be >= 3, got {cfg.egomotion.min_points}")
+    if cfg.egomotion.min_inliers < 3:
+        raise ConfigError(f"cav.egomotion.min_inliers: must be >= 3, got {cfg.egomotion.min_inliers}")

@@ -1,0 +1,155 @@
+"""The CAV-side pipeline of one frame: radar points + camera boxes -> SharedFrame.
+
+ego-motion fit (stationary vs moving) -> frustum separation per box -> DBSCAN per vehicle
+-> DBSCAN + voxel sketch of the background. Both vehicles run it on their own data.
+
+Choices where the paper is silent:
+- every box scoring >= `separation.min_box_score` becomes a vehicle of the frame (so the
+  matcher sees every detection with its descriptor), in box order;
+- a box that claims no moving point is a parked car (or a vehicle crossing the line of
+  sight, whose Doppler looks stationary): its radar points go to the background, the
+  vehicle keeps its box and descriptor, no points, and its centre is the centroid of the
+  stationary points it claimed (or, with none, the box bearing at the box depth);
+- moving points claimed by no box (ghosts, clutter, vehicles the camera missed) and moving
+  points outside a vehicle's main cluster are dropped; stationary ones join the background;
+- when the ego-motion fit gives no estimate, no point is moving: every box is treated as
+  parked and `ego_velocity` is NaN.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from mmatch.cav import background as bg
+from mmatch.cav.clustering import main_clusters
+from mmatch.cav.config import CavConfig
+from mmatch.cav.egomotion import fit_egomotion
+from mmatch.cav.frustum import centres_from_boxes, project, separate
+from mmatch.errors import MMatchError
+from mmatch.shared import SharedFrame
+from mmatch.types import DESCRIPTOR_DIM, CameraModel
+
+log = logging.getLogger(__name__)
+
+STAGES: tuple[str, ...] = ("egomotion", "separation", "clustering", "background")
+
+
+class CavInputError(MMatchError, ValueError):
+    """process_view got arrays of the wrong shape (a programming error upstream)."""
+
+
+def _check_inputs(points, boxes, features) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    points = np.asarray(points, np.float32)
+    boxes = np.asarray(boxes, np.float32)
+    features = np.asarray(features, np.float32)
+    if points.size == 0:
+        points = points.reshape(0, 5)
+    if boxes.size == 0:
+        boxes = boxes.reshape(0, 6)
+    if features.size == 0:
+        features = features.reshape(0, DESCRIPTOR_DIM)
+    if points.ndim != 2 or points.shape[1] != 5:
+        raise CavInputError(f"points: shape {points.shape} is not (N, 5)")
+    if boxes.ndim != 2 or boxes.shape[1] != 6:
+        raise CavInputError(f"boxes: shape {boxes.shape} is not (M, 6)")
+    if features.shape != (len(boxes), DESCRIPTOR_DIM):
+        raise CavInputError(f"features: shape {features.shape} is not ({len(boxes)}, {DESCRIPTOR_DIM})")
+    return points, boxes, features
+
+
+def _overwrite_centroids(centres: np.ndarray, points: np.ndarray, members: np.ndarray,
+                         owner: np.ndarray) -> None:
+    """Set centres[v] (V, 2) to the x, y centroid of the member points owned by v, where any."""
+    if len(members) == 0:
+        return
+    V = len(centres)
+    cnt = np.bincount(owner[members], minlength=V)
+    has = cnt > 0
+    for col in (0, 1):
+        s = np.bincount(owner[members], weights=points[members, col], minlength=V)
+        centres[has, col] = s[has] / cnt[has]
+
+
+def process_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera: CameraModel,
+                 radar_height: float, stamp: float, *, sender: str = "cav", seq: int = 0,
+                 config: CavConfig | None = None) -> tuple[SharedFrame, dict[str, float]]:
+    """Run the CAV-side stages on one frame.
+
+    points: float32 (N, 5) x, y, z, doppler, snr (radar frame; m, m/s, dB); rows with a
+        non-finite value are ignored.
+    boxes: float32 (M, 6) u1, v1, u2, v2 (px), score, depth (m); features: float32 (M, 32).
+    camera: intrinsics and T_cam_radar; radar_height: m; stamp: capture time, s.
+    Returns the shared frame (sender's radar frame) and milliseconds per stage
+    {"egomotion", "separation", "clustering", "background"}. An empty frame or one without
+    boxes gives a valid (possibly empty) frame, never an exception; wrong shapes raise
+    CavInputError.
+    """
+    cfg = config or CavConfig()
+    points, boxes, features = _check_inputs(points, boxes, features)
+    finite = np.all(np.isfinite(points), axis=1)
+    if not finite.all():
+        log.debug("dropping %d non-finite points", int((~finite).sum()))
+        points = points[finite]
+    timings: dict[str, float] = {}
+
+    # ---- 1. ego-motion: stationary vs moving
+    t0 = time.perf_counter()
+    ego = fit_egomotion(points, cfg.egomotion)
+    moving = ego.moving
+    t1 = time.perf_counter()
+    timings["egomotion"] = (t1 - t0) * 1e3
+
+    # ---- 2. frustum separation
+    box_ok = np.all(np.isfinite(boxes), axis=1) & (boxes[:, 4] >= cfg.separation.min_box_score) \
+        & (boxes[:, 5] > 0) & (boxes[:, 2] >= boxes[:, 0]) & (boxes[:, 3] >= boxes[:, 1])
+    vbox = np.flatnonzero(box_ok).astype(np.int32)          # vehicle v <-> box vbox[v]
+    vb = boxes[vbox]
+    proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
+    sep = separate(points, moving, vb, camera, cfg.separation, proj)
+    owner = sep.owner                                         # vehicle index or -1
+    parked = np.append(sep.claimed_moving == 0, True)         # (V + 1,); owner -1 -> last
+    owned_by_parked = (owner >= 0) & parked[owner]
+    candidate = (owner >= 0) & ~owned_by_parked
+    t2 = time.perf_counter()
+    timings["separation"] = (t2 - t1) * 1e3
+
+    # ---- 3. DBSCAN per vehicle
+    cand_idx = np.flatnonzero(candidate)
+    keep = main_clusters(points[cand_idx, :2], ego.residual[cand_idx], moving[cand_idx],
+                         owner[cand_idx], cfg.clustering)
+    veh_idx = cand_idx[keep]
+    veh_idx = veh_idx[np.argsort(owner[veh_idx], kind="stable")]
+    t3 = time.perf_counter()
+    timings["clustering"] = (t3 - t2) * 1e3
+
+    # ---- 4. background sketch of the stationary points not used by a moving vehicle
+    is_vehicle_point = np.zeros(len(points), bool)
+    is_vehicle_point[veh_idx] = True
+    stationary = ~moving & ~is_vehicle_point
+    background = bg.sketch(points[stationary, :3], cfg.background)
+    t4 = time.perf_counter()
+    timings["background"] = (t4 - t3) * 1e3
+
+    # ---- vehicle centres: point centroid, else claimed stationary points, else box bearing
+    vidx = owner[veh_idx]
+    centres = centres_from_boxes(vb, camera)
+    _overwrite_centroids(centres, points, np.flatnonzero(owned_by_parked), owner)
+    _overwrite_centroids(centres, points, veh_idx, owner)
+
+    frame = SharedFrame(
+        sender=sender, seq=int(seq), stamp=float(stamp), radar_height=float(radar_height),
+        ego_velocity=np.asarray(ego.velocity, np.float64).copy(),
+        vehicle_points=points[veh_idx].astype(np.float32),
+        vehicle_index=vidx.astype(np.int32),
+        vehicle_boxes=vb.astype(np.float32),
+        vehicle_box_index=vbox,
+        vehicle_centers=centres.astype(np.float32),
+        vehicle_features=features[vbox].astype(np.float32),
+        background=background,
+    )
+    if not ego.ok:
+        log.debug("frame %s/%d: ego-motion %s (%s)", sender, seq, ego.status.value, ego.reason)
+    return frame, timings
