@@ -1,0 +1,310 @@
+"""Pure TI UART frame decoder: bytes at an offset -> one frame, a rejection, or "need more".
+
+`decode_frame` applies the acceptance rule of ti_formats.md section 0, in this order:
+magic word at `offset`; header complete; sane totalPacketLen; the packet fits in the data
+(otherwise: wait for more bytes, unless the stream is final or a later magic word inside the
+declared packet proves it truncated); no other magic word inside [offset+8, offset+len);
+for the 48-byte format the header checksum; all numTLVs TLV headers and payloads inside the
+packet; each known TLV payload well-formed; padding after the last TLV < 32 bytes with the
+packet a multiple of 32 bytes (36/40-byte formats, SDK >= 2) or none (48-byte format);
+for SDK >= 3 TLV 1 holds numDetectedObj points (or length 0 when numDetectedObj is 0, the
+SDK 3.3 quirk) and TLV 7, when present, one entry per point.
+
+It never raises on bad bytes: every failure is a `DecodeResult` with a reason from
+`REASONS`.
+
+Points come out as mmatch points, float32 (N, 5) x, y, z (m), doppler (m/s, radial,
+positive = range increasing), snr (dB), from the first point TLV of the frame:
+
+* TLV 1 float (SDK 3.x): x, y, z, velocity; snr = TLV 7 snr x 0.1 dB, **0.0 when the frame
+  has no TLV 7** (guiMonitor detectedObjects 2, or the SDK 3.3 empty-frame quirk).
+* TLV 1 Q-format (SDK 1.x/2.x): x, y, z = raw / 2**q; doppler = signed dopplerIdx x the
+  Doppler resolution of the cfg passed as `chirp` (indices >= numDopplerBins/2 wrapped),
+  **0.0 without a cfg**; snr = TLV 7 when present, else **0.0: this format carries no SNR**
+  (peakVal is a log-magnitude, kept in the `DetectedPointsQ` message).
+* TLV 301 (L-SDK): raw x unit for x, y, z, doppler; snr x snrUnit (dB).
+* TLV 1020 / 48-B TLV 6 (compressed spherical): r, azimuth, elevation, doppler x units;
+  x = r cos(el) sin(az), y = r cos(el) cos(az), z = r sin(el); snr is a linear ratio on the
+  wire, converted to 10 log10(ratio) dB, floored at -30 dB (ratio 0).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from drivers.ti.header import MAGIC, FrameHeader, HeaderFormat, candidate_formats, version_major
+from drivers.ti.tlv import (
+    OOB_TLVS, PC3D_TLVS, POINT_F32, CompressedPoints, DetectedPoints, DetectedPointsQ,
+    ExtDetectedPoints, RawTlv, SideInfo, TlvMessage)
+from mmatch.errors import DecodeError
+from mmatch.types import RadarFrame
+
+if TYPE_CHECKING:
+    from drivers.ti.cfg import ChirpParams
+
+MAX_PACKET_LEN = 4 * 1024 * 1024
+"""Largest totalPacketLen accepted (bytes); a longer one is a corrupted length."""
+
+SEGMENT = 32
+"""SDK 2.x/3.x pad packets to a multiple of this (MMWDEMO_OUTPUT_MSG_SEGMENT_LEN)."""
+
+SNR_FLOOR_DB = -30.0
+
+OK, NEED_MORE, REJECT = "ok", "need_more", "reject"
+
+REASONS: tuple[str, ...] = (
+    "truncated",            # packet cut short: stream ended or a later magic word proves it
+    "bad_length",           # totalPacketLen smaller than the header or absurdly large
+    "magic_inside_packet",  # another magic word starts inside the declared packet
+    "header_checksum",      # 48-byte people-counting header checksum fails
+    "tlv_out_of_bounds",    # a TLV header or payload runs past the packet
+    "bad_tlv_length",       # a TLV length that cannot be (48-B format length < 8)
+    "bad_tlv_payload",      # a known TLV whose payload size/content is inconsistent
+    "padding",              # >= 32 bytes after the last TLV, or not a 32-byte multiple
+    "point_count",          # TLV 1 / TLV 7 disagree with numDetectedObj
+)
+
+_TLV_HDR = struct.Struct("<2I")
+_EMPTY5 = np.zeros((0, 5), np.float32)
+
+
+@dataclass(frozen=True)
+class TiPacket:
+    """One accepted UART frame: header, TLV messages in wire order, mmatch points."""
+
+    header: FrameHeader
+    tlvs: tuple[TlvMessage, ...]
+    points: np.ndarray
+    offset: int
+    length: int
+    host_time: float = 0.0
+
+    def tlv(self, tlv_type: int) -> TlvMessage | None:
+        """The first TLV of a type, or None."""
+        for t in self.tlvs:
+            if t.type == tlv_type:
+                return t
+        return None
+
+    def radar_frame(self, host_time: float | None = None) -> RadarFrame:
+        """As an `mmatch.types.RadarFrame`; stamp = host receive time (s), `self.host_time`
+        unless given (the reader sets it when the packet completes)."""
+        t = self.host_time if host_time is None else host_time
+        return RadarFrame(points=self.points, stamp=t, frame_number=self.header.frame_number,
+                          host_time=t, device=self.header.device_fields())
+
+
+@dataclass(frozen=True)
+class DecodeResult:
+    """status: "ok" (packet set, `length` bytes consumed), "need_more" (wait for bytes) or
+    "reject" (`reason` from REASONS, `detail` for humans)."""
+
+    status: str
+    packet: TiPacket | None = None
+    length: int = 0
+    reason: str = ""
+    detail: str = ""
+
+
+def _reject(reason: str, detail: str) -> DecodeResult:
+    return DecodeResult(REJECT, reason=reason, detail=detail)
+
+
+_NEED_MORE = DecodeResult(NEED_MORE)
+
+
+def decode_frame(buf: bytes | bytearray, offset: int = 0, end: int | None = None, *,
+                 final: bool = True, prefer: HeaderFormat | None = None,
+                 chirp: ChirpParams | None = None) -> DecodeResult:
+    """Decode the frame whose magic word starts at `buf[offset]` (pure; never raises on data).
+
+    end: end of valid data (default len(buf)). final: no more bytes will come (a short frame
+    is then "truncated" instead of "need_more"). prefer: the header format the stream has
+    been using, tried first and used to name the reason of a rejection. chirp: cfg-derived
+    parameters, used only to scale SDK 1.x/2.x Doppler indices to m/s.
+    """
+    if end is None:
+        end = len(buf)
+    avail = end - offset
+    if buf[offset:offset + 8] != MAGIC:
+        return _reject("bad_length", "no magic word at offset")  # caller error; never from the reader
+    if avail < 20:
+        return _short(buf, offset, end, final, "header")
+    formats = candidate_formats(buf, offset, avail)
+    if formats == [HeaderFormat.H40] and avail < 48 and not final:
+        # H48 cannot be ruled out before its checksum is readable
+        if _later_magic(buf, offset, end) < 0:
+            return _NEED_MORE
+    if prefer is not None and prefer in formats and formats[0] is not prefer:
+        formats = [prefer] + [f for f in formats if f is not prefer]
+    first: DecodeResult | None = None
+    for fmt in formats:
+        res = _decode_as(buf, offset, end, final, fmt, chirp)
+        if res.status != REJECT:
+            return res
+        first = first or res
+    if prefer is HeaderFormat.H48 and HeaderFormat.H48 not in formats and avail >= 48:
+        return _reject("header_checksum", "48-byte header checksum does not hold")
+    assert first is not None
+    return first
+
+
+def _later_magic(buf: bytes | bytearray, offset: int, stop: int) -> int:
+    return buf.find(MAGIC, offset + 8, stop)
+
+
+def _short(buf: bytes | bytearray, offset: int, end: int, final: bool, what: str) -> DecodeResult:
+    if final:
+        return _reject("truncated", f"stream ends inside the {what}")
+    if _later_magic(buf, offset, end) >= 0:
+        return _reject("truncated", f"a magic word follows before the {what} is complete")
+    return _NEED_MORE
+
+
+def _decode_as(buf: bytes | bytearray, offset: int, end: int, final: bool, fmt: HeaderFormat,
+               chirp: ChirpParams | None) -> DecodeResult:
+    hsize = fmt.size
+    if end - offset < hsize:
+        return _short(buf, offset, end, final, "header")
+    hdr = FrameHeader.from_bytes(buf, offset, fmt)
+    total = hdr.total_packet_len
+    if total < hsize or total > MAX_PACKET_LEN:
+        return _reject("bad_length", f"totalPacketLen {total} with a {hsize}-byte header")
+    pkt_end = offset + total
+    if pkt_end > end:
+        return _short(buf, offset, end, final, f"{total}-byte packet")
+    inner = _later_magic(buf, offset, pkt_end)
+    if inner >= 0:
+        return _reject("magic_inside_packet", f"magic word at +{inner - offset} inside a {total}-byte packet")
+
+    major = version_major(hdr.version)
+    registry = PC3D_TLVS if fmt is HeaderFormat.H48 else OOB_TLVS
+    tlv_incl_header = fmt is HeaderFormat.H48
+    pos = offset + hsize
+    tlvs: list[TlvMessage] = []
+    for k in range(hdr.num_tlvs):
+        if pos + 8 > pkt_end:
+            return _reject("tlv_out_of_bounds", f"TLV {k + 1}/{hdr.num_tlvs} header past the packet end")
+        ttype, length = _TLV_HDR.unpack_from(buf, pos)
+        if tlv_incl_header:
+            if length < 8:
+                return _reject("bad_tlv_length", f"TLV {k + 1} type {ttype}: length {length} < 8 "
+                                                 "(48-B format lengths include the TLV header)")
+            length -= 8
+        start = pos + 8
+        stop = start + length
+        if stop > pkt_end:
+            return _reject("tlv_out_of_bounds",
+                           f"TLV {k + 1}/{hdr.num_tlvs} type {ttype}: {length} B run past the packet end")
+        payload = buf[start:stop]
+        if not isinstance(payload, bytes):
+            payload = bytes(payload)
+        try:
+            if ttype == 1 and fmt is not HeaderFormat.H48:
+                msg: TlvMessage = (DetectedPoints if major >= 3 else DetectedPointsQ).from_bytes(payload)
+            else:
+                cls = registry.get(ttype)
+                msg = cls.from_bytes(payload) if cls is not None else RawTlv(ttype, payload)
+        except DecodeError as exc:
+            return _reject("bad_tlv_payload", str(exc))
+        tlvs.append(msg)
+        pos = stop
+
+    pad = pkt_end - pos
+    if fmt is HeaderFormat.H48:
+        if pad:
+            return _reject("padding", f"{pad} bytes after the last TLV (48-B format is unpadded)")
+    elif pad >= SEGMENT or (major >= 2 and total % SEGMENT):
+        return _reject("padding", f"{pad} bytes after the last TLV in a {total}-byte packet")
+
+    points, why = _points(hdr, major, tlvs, chirp)
+    if why:
+        return _reject("point_count", why)
+    pkt = TiPacket(header=hdr, tlvs=tuple(tlvs), points=points, offset=offset, length=total)
+    return DecodeResult(OK, packet=pkt, length=total)
+
+
+def _snr_from_side_info(tlvs: list[TlvMessage], n: int) -> tuple[np.ndarray | None, str]:
+    for t in tlvs:
+        if isinstance(t, SideInfo):
+            if len(t.info) != n:
+                return None, f"TLV 7 has {len(t.info)} entries for {n} points"
+            return t.snr_db(), ""
+    return np.zeros(n, np.float32), ""
+
+
+def _points(hdr: FrameHeader, major: int, tlvs: list[TlvMessage],
+            chirp: ChirpParams | None) -> tuple[np.ndarray, str]:
+    for t in tlvs:
+        if isinstance(t, DetectedPoints):
+            n = len(t.points)
+            if major >= 3 and n != hdr.num_detected_obj:
+                return _EMPTY5, f"TLV 1 holds {n} points, header numDetectedObj {hdr.num_detected_obj}"
+            snr, why = _snr_from_side_info(tlvs, n)
+            if why:
+                return _EMPTY5, why
+            out = np.empty((n, 5), np.float32)
+            out[:, :4] = t.points.view(np.float32).reshape(n, 4) if n else np.zeros((0, 4), np.float32)
+            out[:, 4] = snr
+            return out, ""
+        if isinstance(t, DetectedPointsQ):
+            n = len(t.objects)
+            if n != hdr.num_detected_obj:
+                return _EMPTY5, f"TLV 1 holds {n} objects, header numDetectedObj {hdr.num_detected_obj}"
+            snr, why = _snr_from_side_info(tlvs, n)
+            if why:
+                return _EMPTY5, why
+            out = np.empty((n, 5), np.float32)
+            out[:, :3] = t.xyz_m()
+            out[:, 3] = doppler_from_index(t.objects["doppler_idx"], chirp)
+            out[:, 4] = snr
+            return out, ""
+        if isinstance(t, ExtDetectedPoints):
+            p, (xyz_u, dop_u, snr_u, _) = t.points, t.units
+            out = np.empty((len(p), 5), np.float32)
+            out[:, 0] = p["x"] * np.float32(xyz_u)
+            out[:, 1] = p["y"] * np.float32(xyz_u)
+            out[:, 2] = p["z"] * np.float32(xyz_u)
+            out[:, 3] = p["doppler"] * np.float32(dop_u)
+            out[:, 4] = p["snr"] * np.float32(snr_u)
+            return out, ""
+        if isinstance(t, CompressedPoints):
+            return spherical_to_points(t), ""
+    return _EMPTY5, ""
+
+
+def doppler_from_index(doppler_idx: np.ndarray, chirp: ChirpParams | None) -> np.ndarray:
+    """Signed Doppler bins -> m/s with the cfg's resolution (0.0 without a cfg)."""
+    if chirp is None:
+        return np.zeros(len(doppler_idx), np.float32)
+    idx = doppler_idx.astype(np.int32)
+    nd = int(chirp.num_doppler_bins)
+    idx = np.where(idx >= nd // 2, idx - nd, idx)
+    return (idx * chirp.doppler_resolution_mps).astype(np.float32)
+
+
+def spherical_to_points(t: CompressedPoints) -> np.ndarray:
+    """Compressed spherical points -> float32 (N, 5) mmatch points (see module doc)."""
+    el_u, az_u, dop_u, r_u, snr_u = (np.float32(u) for u in t.units)
+    p = t.points
+    el = p["elevation"] * el_u
+    az = p["azimuth"] * az_u
+    r = p["range"] * r_u
+    rc = r * np.cos(el)
+    out = np.empty((len(p), 5), np.float32)
+    out[:, 0] = rc * np.sin(az)
+    out[:, 1] = rc * np.cos(az)
+    out[:, 2] = r * np.sin(el)
+    out[:, 3] = p["doppler"] * dop_u
+    ratio = p["snr"] * snr_u
+    with np.errstate(divide="ignore"):
+        out[:, 4] = np.maximum(np.float32(10.0) * np.log10(ratio), np.float32(SNR_FLOOR_DB))
+    return out
+
+
+__all__ = ["decode_frame", "DecodeResult", "TiPacket", "REASONS", "OK", "NEED_MORE", "REJECT",
+           "POINT_F32", "doppler_from_index", "spherical_to_points"]
