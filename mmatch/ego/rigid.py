@@ -1,0 +1,84 @@
+"""Planar rigid geometry on the road plane: Kabsch in 2-D, point-to-point ICP, SE(2) <-> 4x4.
+
+Both radars sit level above a flat road, so the CAV -> Ego transform is a yaw and an
+x, y translation; z is the difference of the two mounting heights, which each vehicle
+knows and shares.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+def se2_to_matrix(R2: np.ndarray, t2: np.ndarray, dz: float = 0.0) -> np.ndarray:
+    """4x4 float64 from a 2x2 rotation, a 2-vector translation and a z offset (m)."""
+    T = np.eye(4)
+    T[:2, :2] = R2
+    T[:2, 3] = t2
+    T[2, 3] = dz
+    return T
+
+
+def apply2(R2: np.ndarray, t2: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Transform (N, 2) points."""
+    return pts @ R2.T + t2
+
+
+def kabsch2d(src: np.ndarray, dst: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least-squares R, t with dst ~ R @ src + t for (N, 2) point sets (N >= 2; N = 1 gives R = I)."""
+    if w is None:
+        w = np.ones(len(src))
+    w = w / w.sum()
+    cs, cd = w @ src, w @ dst
+    if len(src) < 2:
+        return np.eye(2), cd - cs
+    H = (src - cs).T @ ((dst - cd) * w[:, None])
+    ang = np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1])
+    c, s = np.cos(ang), np.sin(ang)
+    R = np.array([[c, -s], [s, c]])
+    return R, cd - R @ cs
+
+
+def icp2d(src: np.ndarray, dst: np.ndarray, R: np.ndarray, t: np.ndarray, max_dist: float = 1.5,
+          min_dist: float = 0.5, iterations: int = 30, anchors: tuple[np.ndarray, np.ndarray] | None = None,
+          anchor_weight: float = 0.0, trim: float = 0.8) -> tuple[np.ndarray, np.ndarray, float]:
+    """Point-to-point ICP of src (N, 2) onto dst (M, 2) from (R, t).
+
+    The correspondence gate shrinks from max_dist to min_dist (m); the worst (1 - trim)
+    share of pairs is dropped each round. anchors = (src_a, dst_a) are fixed
+    correspondences (matched vehicles) added with anchor_weight each, which keeps the
+    solution from sliding along a symmetric road. Returns R, t and the inlier share.
+    """
+    if len(src) == 0 or len(dst) == 0:
+        return R, t, 0.0
+    tree = cKDTree(dst)
+    inlier = 0.0
+    for it in range(iterations):
+        gate = max_dist + (min_dist - max_dist) * min(it / max(iterations * 0.6, 1), 1.0)
+        moved = apply2(R, t, src)
+        d, j = tree.query(moved, distance_upper_bound=gate)
+        ok = np.isfinite(d)
+        if ok.sum() < 3:
+            break
+        if trim < 1.0:
+            cut = np.quantile(d[ok], trim)
+            ok &= d <= cut
+        inlier = float(ok.mean())
+        s, q = src[ok], dst[j[ok]]
+        w = np.ones(len(s))
+        if anchors is not None and anchor_weight > 0 and len(anchors[0]):
+            s = np.vstack([s, anchors[0]])
+            q = np.vstack([q, anchors[1]])
+            w = np.concatenate([w, np.full(len(anchors[0]), anchor_weight)])
+        R_new, t_new = kabsch2d(s, q, w)
+        if np.allclose(R_new, R, atol=1e-7) and np.allclose(t_new, t, atol=1e-5):
+            R, t = R_new, t_new
+            break
+        R, t = R_new, t_new
+    return R, t, inlier
+
+
+def yaw_of(T: np.ndarray) -> float:
+    """Yaw (rad) of a 4x4 or 2x2 rotation."""
+    return float(np.arctan2(T[1, 0], T[0, 0]))

@@ -1,0 +1,45 @@
+"""Accuracy metrics of DESIGN.md: RRE, RTE, success, co-visible pair precision and recall."""
+
+from __future__ import annotations
+
+import numpy as np
+
+SUCCESS_RRE_DEG = 5.0
+SUCCESS_RTE_M = 2.0
+
+
+def euler_zyx(R: np.ndarray) -> np.ndarray:
+    """Euler angles (roll, pitch, yaw) in rad of a rotation matrix (ZYX convention)."""
+    pitch = np.arcsin(np.clip(-R[2, 0], -1.0, 1.0))
+    roll = np.arctan2(R[2, 1], R[2, 2])
+    yaw = np.arctan2(R[1, 0], R[0, 0])
+    return np.array([roll, pitch, yaw])
+
+
+def rre_deg(T_gt: np.ndarray, T_est: np.ndarray) -> float:
+    """Relative rotation error: sum of absolute Euler angles of R_gt^T R_est, degrees."""
+    return float(np.degrees(np.abs(euler_zyx(T_gt[:3, :3].T @ T_est[:3, :3])).sum()))
+
+
+def rte_m(T_gt: np.ndarray, T_est: np.ndarray) -> float:
+    """Relative translation error ||t_gt - t_est||, metres."""
+    return float(np.linalg.norm(T_gt[:3, 3] - T_est[:3, 3]))
+
+
+def is_success(rre: float, rte: float) -> bool:
+    return rre < SUCCESS_RRE_DEG and rte < SUCCESS_RTE_M
+
+
+def pair_counts(pred: np.ndarray, gt: np.ndarray) -> tuple[int, int, int]:
+    """(true positives, predicted, ground truth) over (own box, other box) index pairs."""
+    p = {(int(a), int(b)) for a, b in np.asarray(pred).reshape(-1, 2)}
+    g = {(int(a), int(b)) for a, b in np.asarray(gt).reshape(-1, 2)}
+    return len(p & g), len(p), len(g)
+
+
+def summary(values: list[float]) -> dict[str, float]:
+    """median / mean / p90 of a list (NaN when empty)."""
+    if not values:
+        return {"median": float("nan"), "mean": float("nan"), "p90": float("nan")}
+    a = np.asarray(values, float)
+    return {"median": float(np.median(a)), "mean": float(a.mean()), "p90": float(np.percentile(a, 90))}
