@@ -228,9 +228,9 @@ class RadarDsp:
             cand = power > (self.thr / 10.0) * noise
         cand[:, : self.r_lo] = False
         cand[:, self.r_hi:] = False
-        if cfg.peak_grouping:
-            cand &= power >= ndimage.maximum_filter(power, size=3, mode=("wrap", "nearest"))
         d, r = np.nonzero(cand)
+        if cfg.peak_grouping and len(d):
+            d, r = self._local_max(power, d, r)
         if cfg.cfar == "os" and len(d):
             d, r, nz = self._os_filter(power, d, r)
         else:
@@ -243,6 +243,19 @@ class RadarDsp:
         points = self._points(spec, power, d, r, p, nz) if len(d) else empty_points()
         return DspResult(points, np.stack([d, r], axis=1), power if keep_maps else None,
                          noise if keep_maps else None)
+
+    @staticmethod
+    def _local_max(power, d, r):
+        """Keep cells that are >= their 8 neighbours (Doppler cyclic, range clipped)."""
+        D, R = power.shape
+        p0 = power[d, r]
+        keep = np.ones(len(d), dtype=bool)
+        for od in (-1, 0, 1):
+            dn = (d + od) % D
+            for orr in (-1, 0, 1):
+                if od or orr:
+                    keep &= p0 >= power[dn, np.clip(r + orr, 0, R - 1)]
+        return d[keep], r[keep]
 
     def _os_filter(self, power, d, r):
         """Ordered-statistic CFAR at candidate cells: noise = os_rank quantile of the ring."""
