@@ -42,13 +42,15 @@ def kabsch2d(src: np.ndarray, dst: np.ndarray, w: np.ndarray | None = None) -> t
 
 def icp2d(src: np.ndarray, dst: np.ndarray, R: np.ndarray, t: np.ndarray, max_dist: float = 1.5,
           min_dist: float = 0.5, iterations: int = 30, anchors: tuple[np.ndarray, np.ndarray] | None = None,
-          anchor_weight: float = 0.0, trim: float = 0.8) -> tuple[np.ndarray, np.ndarray, float]:
+          anchor_weight: float = 0.0, trim: float = 0.8, fix_rotation: bool = False
+          ) -> tuple[np.ndarray, np.ndarray, float]:
     """Point-to-point ICP of src (N, 2) onto dst (M, 2) from (R, t).
 
     The correspondence gate shrinks from max_dist to min_dist (m); the worst (1 - trim)
     share of pairs is dropped each round. anchors = (src_a, dst_a) are fixed
     correspondences (matched vehicles) added with anchor_weight each, which keeps the
-    solution from sliding along a symmetric road. Returns R, t and the inlier share.
+    solution from sliding along a symmetric road. fix_rotation keeps R and fits t only.
+    Returns R, t and the inlier share.
     """
     if len(src) == 0 or len(dst) == 0:
         return R, t, 0.0
@@ -71,7 +73,10 @@ def icp2d(src: np.ndarray, dst: np.ndarray, R: np.ndarray, t: np.ndarray, max_di
             s = np.vstack([s, anchors[0]])
             q = np.vstack([q, anchors[1]])
             w = np.concatenate([w, np.full(len(anchors[0]), anchor_weight)])
-        R_new, t_new = kabsch2d(s, q, w)
+        if fix_rotation:
+            R_new, t_new = R, (w / w.sum()) @ (q - s @ R.T)
+        else:
+            R_new, t_new = kabsch2d(s, q, w)
         if np.allclose(R_new, R, atol=1e-7) and np.allclose(t_new, t, atol=1e-5):
             R, t = R_new, t_new
             break

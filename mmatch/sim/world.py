@@ -307,6 +307,8 @@ def _traffic(rng, mode, road, lanes, two_way, relation, half_w, urban):
         add((side * (half_w + 1.3), ego_pos[1] + rng.uniform(-20, span)), np.pi / 2 + rng.normal(0, 0.03),
             0.0, park=True)
     n = len(pos)
-    vehicles = Vehicles(pos0=np.array(pos), yaw=np.array(yaw), speed=np.array(speed),
+    # nobody drives exactly along the lane: lane keeping wobble and lane changes (1.5 deg rms)
+    heading_noise = rng.normal(0, np.radians(1.5), n)
+    vehicles = Vehicles(pos0=np.array(pos), yaw=np.array(yaw) + heading_noise, speed=np.array(speed),
                         size=_size(rng, n), colour=_colour(rng, n), parked=np.array(parked))
     return vehicles, 0, 1
