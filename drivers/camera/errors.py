@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from mmatch.errors import ConfigError, DeviceError
+from mmatch.errors import ConfigError, DeviceError, MMatchError
 
 
 class ModelError(ConfigError):
@@ -26,3 +26,7 @@ class CalibrationError(ConfigError):
 
 class CameraUnavailable(DeviceError):
     """A camera could not be opened or stopped delivering frames."""
+
+
+class EndOfStream(MMatchError):
+    """A finite camera source (replay folder, video file) has no more frames."""
