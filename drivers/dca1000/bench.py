@@ -19,14 +19,16 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 AWR2243_BENCH_CFG = """\
-% AWR2243 TDM-MIMO 3 TX x 4 RX, 128 loops, 256 complex samples (bench and tests)
+% AWR2243BOOST + DCA1000EVM, TDM-MIMO 3 TX x 4 RX, 128 loops (Doppler bins), 256 complex samples,
+% 4-lane LVDS. Vehicle-grade: max range 102 m (0.445 m bins), max velocity +-20.3 m/s (0.317 m/s bins).
+% Written in TI CLI .cfg form so the same parser (drivers/ti/cfg.py) drives the UART and DCA1000 paths.
 sensorStop
 flushCfg
 dfeDataOutputMode 1
 channelCfg 15 7 0
 adcCfg 2 1
 adcbufCfg -1 0 1 1 1
-profileCfg 0 77 5 6 40 0 0 30 1 256 10000 0 0 30
+profileCfg 0 77 2 2 14 0 0 29 1 256 22000 0 0 30
 chirpCfg 0 0 0 0 0 0 0 1
 chirpCfg 1 1 0 0 0 0 0 2
 chirpCfg 2 2 0 0 0 0 0 4
@@ -57,8 +59,8 @@ def bench_dsp(frames: int) -> dict:
 
     cfg = parse_cfg(AWR2243_BENCH_CFG, "<bench>")
     geom, dsp = make_dsp(cfg)
-    targets = [Target(5.0, 0.0, 0.0), Target(12.0, 3.0, 20.0, 5.0), Target(20.0, -5.0, -30.0),
-               Target(30.0, 6.5, 45.0), Target(8.0, -1.0, -10.0, -5.0)]
+    targets = [Target(5.0, 0.0, 0.0), Target(22.0, 3.0, 20.0, 5.0), Target(40.0, -15.0, -30.0),
+               Target(60.0, 18.0, 45.0), Target(12.0, -1.0, -10.0, -5.0)]
     raw = cube_to_raw(synth_cube(cfg.chirp, geom, targets), geom)
     times = []
     npts = 0
