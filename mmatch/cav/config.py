@@ -72,13 +72,17 @@ class ClusteringConfig:
     """DBSCAN per vehicle over (x, y, velocity_scale * doppler residual).
 
     eps_m: DBSCAN radius in the scaled space, m; min_samples: DBSCAN core size.
-    velocity_scale_s: metres per m/s of Doppler residual (points of one vehicle spread
-        in residual because its velocity projects differently across its angular extent).
+    velocity_scale_s: metres per m/s of Doppler residual. A vehicle's points agree in
+        residual to a few tenths of a m/s (more for near vehicles, whose velocity projects
+        differently across their angular extent) but spread along up to 12 m of body, so
+        the radius is wide in position and the residual is weighted up. Tuned on 100
+        simulated mixed/hard frames: eps 6 m, scale 1 s gave point precision 0.94 and
+        recall 0.98 (of points on detected moving vehicles).
     """
 
-    eps_m: float = 3.0
+    eps_m: float = 6.0
     min_samples: int = 1
-    velocity_scale_s: float = 0.25
+    velocity_scale_s: float = 1.0
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,241 @@
+"""Wire codec of the shared frame (DESIGN.md "Wire format of a shared frame"), format version 1.
+
+Binary, little-endian, length-prefixed, CRC-32 checked, quantised:
+
+    header   magic b"MMSF" | version u8 (=1) | flags u8 (=0) | total length u32 (whole frame, bytes)
+    meta     sender length u8 | sender UTF-8 (<= 64 bytes) | seq u32 | stamp f64 (s)
+             | radar_height f32 (m) | ego vx, vy i16 (cm/s; -32768 = unknown/NaN)
+             | vehicles V u16 | vehicle points K u16 | background points B u16
+    vehicles V records: u1, v1, u2, v2 i16 (half pixels) | score u8 (round(s*255))
+             | depth u16 (cm) | box index u16 | points of this vehicle u16
+             | centre x, y i16 (cm) | descriptor 32 x u8 (round(v*255))
+    points   K records, grouped by vehicle in vehicle order: x, y, z i16 (cm)
+             | doppler i16 (cm/s) | snr u8 (half dB)
+    backgr.  B records: x, y, z i16 (cm)
+    crc      u32: zlib.crc32 of every byte before it
+
+Quantisation losses (round to nearest): positions and centres +-0.5 cm (range +-327.67 m);
+Doppler and ego velocity +-0.5 cm/s (+-327.67 m/s); box corners +-0.25 px (+-16383.5 px);
+depth +-0.5 cm (0-655.35 m); score +-1/510; snr +-0.25 dB, clipped to 0-127.5 dB (TI SNR is
+non-negative); descriptor bins +-1/510 each, clipped to 0-1, so a decoded group sums to 1
+only within 16/510 (hue) or 8/510 (saturation, value); radar height is float32 (+-6e-8
+relative); stamp is exact. A vehicle record costs 51 bytes, a point 9, a background point 6.
+
+`encode` raises EncodeError for values the format cannot carry (out of range, NaN where a
+number is required, sender too long, more than 65535 items). `decode` trusts nothing: a
+wrong magic, version, flags, length, CRC, count, sender text or a non-finite stamp raises
+DecodeError, and no other exception escapes it.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+
+from mmatch.errors import DecodeError, MMatchError
+from mmatch.shared import SharedFrame
+from mmatch.types import DESCRIPTOR_DIM
+
+MAGIC = b"MMSF"
+VERSION = 1
+MAX_SENDER_BYTES = 64
+VELOCITY_UNKNOWN = -32768
+
+_HEADER = struct.Struct("<4sBBI")
+_META = struct.Struct("<IdfhhHHH")
+_CRC = struct.Struct("<I")
+
+VEHICLE_DTYPE = np.dtype([("box", "<i2", (4,)), ("score", "u1"), ("depth", "<u2"),
+                          ("box_index", "<u2"), ("n_points", "<u2"), ("centre", "<i2", (2,)),
+                          ("descriptor", "u1", (DESCRIPTOR_DIM,))])
+POINT_DTYPE = np.dtype([("xyz", "<i2", (3,)), ("doppler", "<i2"), ("snr", "u1")])
+BACKGROUND_DTYPE = np.dtype([("xyz", "<i2", (3,))])
+
+MIN_FRAME_BYTES = _HEADER.size + 1 + _META.size + _CRC.size
+
+
+class EncodeError(MMatchError, ValueError):
+    """A SharedFrame holds a value the wire format cannot carry; the message names the field."""
+
+
+def _quantise(name: str, values, scale: float, lo: int, hi: int, dtype: str) -> np.ndarray:
+    """round(values * scale) as `dtype`, refusing NaN and values outside [lo, hi]."""
+    v = np.asarray(values, np.float64)
+    if not np.all(np.isfinite(v)):
+        raise EncodeError(f"{name}: contains NaN or infinity")
+    q = np.rint(v * scale)
+    if q.size and (q.min() < lo or q.max() > hi):
+        raise EncodeError(f"{name}: values {v.min():.3f}..{v.max():.3f} outside the wire range "
+                          f"{lo / scale:.3f}..{hi / scale:.3f}")
+    return q.astype(dtype)
+
+
+def _rows(name: str, arr, cols: int) -> np.ndarray:
+    a = np.asarray(arr)
+    if a.size == 0:
+        return np.zeros((0, cols), np.float64)
+    if a.ndim != 2 or a.shape[1] != cols:
+        raise EncodeError(f"{name}: shape {a.shape} is not (N, {cols})")
+    return a.astype(np.float64)
+
+
+def encode(frame: SharedFrame) -> bytes:
+    """Serialise a SharedFrame (format version 1); raises EncodeError on unrepresentable values.
+
+    Vehicle points are written grouped by vehicle (stable order within a vehicle), so a decoded
+    frame lists them in vehicle order.
+    """
+    sender = frame.sender.encode("utf-8")
+    if len(sender) > MAX_SENDER_BYTES:
+        raise EncodeError(f"sender: {len(sender)} UTF-8 bytes > {MAX_SENDER_BYTES}")
+    if not 0 <= int(frame.seq) < 2**32:
+        raise EncodeError(f"seq: {frame.seq} is not a uint32")
+    if not np.isfinite(frame.stamp):
+        raise EncodeError("stamp: not finite")
+    if not np.isfinite(frame.radar_height):
+        raise EncodeError("radar_height: not finite")
+    boxes = _rows("vehicle_boxes", frame.vehicle_boxes, 6)
+    V = len(boxes)
+    points = _rows("vehicle_points", frame.vehicle_points, 5)
+    index = np.asarray(frame.vehicle_index, np.int64).reshape(-1)
+    background = _rows("background", frame.background, 3)
+    centres = _rows("vehicle_centers", frame.vehicle_centers, 2)
+    features = _rows("vehicle_features", frame.vehicle_features, DESCRIPTOR_DIM)
+    box_index = np.asarray(frame.vehicle_box_index, np.int64).reshape(-1)
+    for name, n in (("vehicle_centers", len(centres)), ("vehicle_features", len(features)),
+                    ("vehicle_box_index", len(box_index))):
+        if n != V:
+            raise EncodeError(f"{name}: {n} rows for {V} vehicles")
+    if len(index) != len(points):
+        raise EncodeError(f"vehicle_index: {len(index)} entries for {len(points)} points")
+    if len(index) and (index.min() < 0 or index.max() >= V):
+        raise EncodeError("vehicle_index: refers to a vehicle that does not exist")
+    for name, n in (("vehicles", V), ("vehicle_points", len(points)), ("background", len(background))):
+        if n > 0xFFFF:
+            raise EncodeError(f"{name}: {n} > 65535 items")
+
+    vel = np.asarray(frame.ego_velocity, np.float64).reshape(-1)
+    if vel.shape != (2,):
+        raise EncodeError(f"ego_velocity: shape {vel.shape} is not (2,)")
+    if np.all(np.isnan(vel)):
+        vq = (VELOCITY_UNKNOWN, VELOCITY_UNKNOWN)
+    else:
+        vq = tuple(int(x) for x in _quantise("ego_velocity", vel, 100, -32767, 32767, "<i2"))
+
+    veh = np.zeros(V, VEHICLE_DTYPE)
+    veh["box"] = _quantise("vehicle_boxes[u1:v2]", boxes[:, :4], 2, -32768, 32767, "<i2")
+    veh["score"] = _quantise("vehicle_boxes[score]", boxes[:, 4], 255, 0, 255, "u1")
+    veh["depth"] = _quantise("vehicle_boxes[depth]", boxes[:, 5], 100, 0, 65535, "<u2")
+    veh["box_index"] = _quantise("vehicle_box_index", box_index, 1, 0, 65535, "<u2")
+    veh["n_points"] = np.bincount(index, minlength=V)[:V] if V else np.zeros(0)
+    veh["centre"] = _quantise("vehicle_centers", centres, 100, -32768, 32767, "<i2")
+    feats = np.where(np.isnan(features), np.nan, np.clip(features, 0.0, 1.0))
+    veh["descriptor"] = _quantise("vehicle_features", feats, 255, 0, 255, "u1")
+
+    order = np.argsort(index, kind="stable")
+    pts = np.zeros(len(points), POINT_DTYPE)
+    pts["xyz"] = _quantise("vehicle_points[xyz]", points[order, :3], 100, -32768, 32767, "<i2")
+    pts["doppler"] = _quantise("vehicle_points[doppler]", points[order, 3], 100, -32768, 32767, "<i2")
+    snr = points[order, 4]
+    if not np.all(np.isfinite(snr)):
+        raise EncodeError("vehicle_points[snr]: contains NaN or infinity")
+    pts["snr"] = _quantise("vehicle_points[snr]", np.clip(snr, 0.0, 127.5), 2, 0, 255, "u1")
+    bgr = np.zeros(len(background), BACKGROUND_DTYPE)
+    bgr["xyz"] = _quantise("background", background, 100, -32768, 32767, "<i2")
+
+    body = b"".join([
+        bytes([len(sender)]), sender,
+        _META.pack(int(frame.seq), float(frame.stamp), float(frame.radar_height), vq[0], vq[1],
+                   V, len(pts), len(bgr)),
+        veh.tobytes(), pts.tobytes(), bgr.tobytes()])
+    total = _HEADER.size + len(body) + _CRC.size
+    head = _HEADER.pack(MAGIC, VERSION, 0, total) + body
+    return head + _CRC.pack(zlib.crc32(head))
+
+
+def decode(data: bytes) -> SharedFrame:
+    """Parse and validate one encoded frame; any defect raises DecodeError (and nothing else)."""
+    try:
+        return _decode(data)
+    except DecodeError:
+        raise
+    except (struct.error, ValueError, TypeError, IndexError, OverflowError) as exc:  # belt and braces
+        raise DecodeError(f"malformed shared frame ({type(exc).__name__}: {exc})") from exc
+
+
+def _decode(data) -> SharedFrame:
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise DecodeError(f"expected bytes, got {type(data).__name__}")
+    buf = bytes(data)
+    n = len(buf)
+    if n < MIN_FRAME_BYTES:
+        raise DecodeError(f"truncated: {n} bytes < the minimum {MIN_FRAME_BYTES}")
+    magic, version, flags, total = _HEADER.unpack_from(buf, 0)
+    if magic != MAGIC:
+        raise DecodeError(f"bad magic {magic!r} (expected {MAGIC!r})")
+    if version != VERSION:
+        raise DecodeError(f"unsupported version {version} (this decoder reads {VERSION})")
+    if flags != 0:
+        raise DecodeError(f"unknown flags 0x{flags:02x}")
+    if total != n:
+        raise DecodeError(f"length field says {total} bytes, got {n}")
+    (crc,) = _CRC.unpack_from(buf, n - _CRC.size)
+    if zlib.crc32(buf[: n - _CRC.size]) != crc:
+        raise DecodeError("CRC-32 mismatch")
+
+    end = n - _CRC.size
+    off = _HEADER.size
+    slen = buf[off]
+    off += 1
+    if slen > MAX_SENDER_BYTES:
+        raise DecodeError(f"sender length {slen} > {MAX_SENDER_BYTES}")
+    if off + slen + _META.size > end:
+        raise DecodeError("truncated meta block")
+    try:
+        sender = buf[off:off + slen].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DecodeError(f"sender is not UTF-8 ({exc})") from exc
+    off += slen
+    seq, stamp, height, vx, vy, V, K, B = _META.unpack_from(buf, off)
+    off += _META.size
+    if not (np.isfinite(stamp) and np.isfinite(height)):
+        raise DecodeError("stamp or radar_height is not finite")
+    need = V * VEHICLE_DTYPE.itemsize + K * POINT_DTYPE.itemsize + B * BACKGROUND_DTYPE.itemsize
+    if need != end - off:
+        raise DecodeError(f"counts (V={V}, K={K}, B={B}) need {need} bytes, {end - off} remain")
+    if (vx == VELOCITY_UNKNOWN) != (vy == VELOCITY_UNKNOWN):
+        raise DecodeError("ego velocity half unknown")
+    veh = np.frombuffer(buf, VEHICLE_DTYPE, V, off)
+    off += V * VEHICLE_DTYPE.itemsize
+    pts = np.frombuffer(buf, POINT_DTYPE, K, off)
+    off += K * POINT_DTYPE.itemsize
+    bgr = np.frombuffer(buf, BACKGROUND_DTYPE, B, off)
+    counts = veh["n_points"].astype(np.int64)
+    if int(counts.sum()) != K:
+        raise DecodeError(f"vehicles claim {int(counts.sum())} points, the frame holds {K}")
+
+    if vx == VELOCITY_UNKNOWN:
+        velocity = np.full(2, np.nan)
+    else:
+        velocity = np.array([vx, vy], np.float64) / 100.0
+    boxes = np.zeros((V, 6), np.float32)
+    boxes[:, :4] = veh["box"].astype(np.float32) / 2.0
+    boxes[:, 4] = veh["score"].astype(np.float32) / 255.0
+    boxes[:, 5] = veh["depth"].astype(np.float32) / 100.0
+    points = np.zeros((K, 5), np.float32)
+    points[:, :3] = pts["xyz"].astype(np.float32) / 100.0
+    points[:, 3] = pts["doppler"].astype(np.float32) / 100.0
+    points[:, 4] = pts["snr"].astype(np.float32) / 2.0
+    return SharedFrame(
+        sender=sender, seq=int(seq), stamp=float(stamp), radar_height=float(height),
+        ego_velocity=velocity,
+        vehicle_points=points,
+        vehicle_index=np.repeat(np.arange(V, dtype=np.int32), counts),
+        vehicle_boxes=boxes,
+        vehicle_box_index=veh["box_index"].astype(np.int32),
+        vehicle_centers=veh["centre"].astype(np.float32) / 100.0,
+        vehicle_features=veh["descriptor"].astype(np.float32) / 255.0,
+        background=bgr["xyz"].astype(np.float32).reshape(B, 3) / 100.0,
+    )

@@ -1,0 +1,227 @@
+"""Wire codec of the shared frame: round trip to the quantisation step, and no bad frame accepted."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from mmatch.codec import (BACKGROUND_DTYPE, MAGIC, POINT_DTYPE, VEHICLE_DTYPE, EncodeError, decode,
+                          encode)
+from mmatch.errors import DecodeError
+from mmatch.shared import SharedFrame
+
+# quantisation steps of format version 1 (half of each is the worst rounding error)
+STEP_POS, STEP_DOP, STEP_PX, STEP_DEPTH, STEP_SNR = 0.01, 0.01, 0.5, 0.01, 0.5
+STEP_U8 = 1 / 255
+
+
+def make_frame(seed: int = 0, V: int = 4, K: int = 17, B: int = 50, sender: str = "cav-7") -> SharedFrame:
+    rng = np.random.default_rng(seed)
+    index = np.sort(rng.integers(0, V, K)).astype(np.int32) if V else np.zeros(0, np.int32)
+    feats = np.hstack([rng.dirichlet(np.ones(16), V), rng.dirichlet(np.ones(8), V),
+                       rng.dirichlet(np.ones(8), V)]) if V else np.zeros((0, 32))
+    u1 = rng.uniform(0, 1200, V)
+    v1 = rng.uniform(0, 650, V)
+    boxes = np.column_stack([u1, v1, u1 + rng.uniform(5, 80, V), v1 + rng.uniform(5, 60, V),
+                             rng.uniform(0, 1, V), rng.uniform(2, 95, V)])
+    pts = np.column_stack([rng.uniform(-80, 80, K), rng.uniform(0, 100, K), rng.uniform(-3, 3, K),
+                           rng.uniform(-40, 40, K), rng.uniform(0, 60, K)])
+    return SharedFrame(sender=sender, seq=int(rng.integers(0, 2**32)), stamp=1.7e9 + rng.uniform(0, 1e4),
+                       radar_height=0.73, ego_velocity=rng.uniform(-20, 20, 2),
+                       vehicle_points=pts.astype(np.float32), vehicle_index=index,
+                       vehicle_boxes=boxes.astype(np.float32),
+                       vehicle_box_index=np.arange(V, dtype=np.int32) * 2,
+                       vehicle_centers=rng.uniform(-50, 90, (V, 2)).astype(np.float32),
+                       vehicle_features=feats.astype(np.float32),
+                       background=rng.uniform(-100, 100, (B, 3)).astype(np.float32))
+
+
+def assert_round_trip(a: SharedFrame, b: SharedFrame) -> None:
+    half = 0.5 + 1e-3          # half a step, plus float32 slack
+    assert b.sender == a.sender and b.seq == a.seq and b.stamp == a.stamp
+    assert b.radar_height == pytest.approx(a.radar_height, rel=1e-6)
+    assert np.all(np.abs(b.ego_velocity - a.ego_velocity) <= half * STEP_DOP)
+    order = np.argsort(a.vehicle_index, kind="stable")
+    np.testing.assert_array_equal(b.vehicle_index, a.vehicle_index[order])
+    pa = a.vehicle_points[order]
+    assert np.all(np.abs(b.vehicle_points[:, :3] - pa[:, :3]) <= half * STEP_POS)
+    assert np.all(np.abs(b.vehicle_points[:, 3] - pa[:, 3]) <= half * STEP_DOP)
+    assert np.all(np.abs(b.vehicle_points[:, 4] - np.clip(pa[:, 4], 0, 127.5)) <= half * STEP_SNR)
+    assert np.all(np.abs(b.vehicle_boxes[:, :4] - a.vehicle_boxes[:, :4]) <= half * STEP_PX)
+    assert np.all(np.abs(b.vehicle_boxes[:, 4] - a.vehicle_boxes[:, 4]) <= half * STEP_U8)
+    assert np.all(np.abs(b.vehicle_boxes[:, 5] - a.vehicle_boxes[:, 5]) <= half * STEP_DEPTH)
+    np.testing.assert_array_equal(b.vehicle_box_index, a.vehicle_box_index)
+    assert np.all(np.abs(b.vehicle_centers - a.vehicle_centers) <= half * STEP_POS)
+    assert np.all(np.abs(b.vehicle_features - a.vehicle_features) <= half * STEP_U8)
+    assert np.all(np.abs(b.background - a.background) <= half * STEP_POS)
+    assert b.vehicle_points.dtype == np.float32 and b.vehicle_index.dtype == np.int32
+    assert b.vehicle_boxes.shape == a.vehicle_boxes.shape and b.background.shape == a.background.shape
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_round_trip_exact_to_the_quantisation_step(seed):
+    a = make_frame(seed)
+    data = encode(a)
+    assert len(data) == (4 + 1 + 1 + 4 + 1 + len(a.sender) + 4 + 8 + 4 + 2 * 2 + 3 * 2 + 4
+                         + 4 * VEHICLE_DTYPE.itemsize + 17 * POINT_DTYPE.itemsize
+                         + 50 * BACKGROUND_DTYPE.itemsize)
+    assert_round_trip(a, decode(data))
+    assert encode(decode(data)) == data          # quantised values are a fixed point
+
+
+def test_round_trip_unsorted_points_come_back_grouped_by_vehicle():
+    a = make_frame(3)
+    perm = np.random.default_rng(1).permutation(len(a.vehicle_index))
+    a.vehicle_index, a.vehicle_points = a.vehicle_index[perm], a.vehicle_points[perm]
+    b = decode(encode(a))
+    assert np.all(np.diff(b.vehicle_index) >= 0)
+    assert_round_trip(a, b)
+
+
+def test_round_trip_empty_frame_and_unknown_velocity():
+    a = SharedFrame(sender="", seq=0, stamp=0.0, radar_height=0.5, ego_velocity=np.full(2, np.nan))
+    b = decode(encode(a))
+    assert b.num_vehicles == 0 and len(b.vehicle_points) == 0 and len(b.background) == 0
+    assert np.all(np.isnan(b.ego_velocity))
+    assert b.vehicle_points.shape == (0, 5) and b.background.shape == (0, 3)
+
+
+def test_round_trip_vehicles_without_points_and_unicode_sender():
+    a = make_frame(4, V=3, K=0, B=0, sender="véhicule-ß")
+    b = decode(encode(a))
+    assert_round_trip(a, b)
+    assert b.num_vehicles == 3 and len(b.vehicle_points) == 0
+
+
+def test_quantisation_extremes_round_trip():
+    a = make_frame(5, V=1, K=2, B=1)
+    a.vehicle_points[0, :4] = [327.67, -327.68, 0.004, -327.68]
+    a.vehicle_points[1, 4] = 500.0              # SNR clipped to 127.5 dB
+    a.seq = 2**32 - 1
+    b = decode(encode(a))
+    assert_round_trip(a, b)
+    assert b.vehicle_points[1, 4] == 127.5 and b.seq == 2**32 - 1
+
+
+@pytest.mark.parametrize("field, value", [
+    ("sender", "x" * 65), ("seq", -1), ("seq", 2**32), ("stamp", float("nan")),
+    ("ego_velocity", np.array([1.0, np.nan])), ("ego_velocity", np.array([400.0, 0.0])),
+    ("background", np.array([[400.0, 0.0, 0.0]], np.float32)),
+])
+def test_encode_refuses_what_the_wire_cannot_carry(field, value):
+    a = make_frame(0)
+    setattr(a, field, value)
+    with pytest.raises(EncodeError, match=field.split("[")[0]):
+        encode(a)
+
+
+def test_encode_refuses_inconsistent_vehicle_index():
+    a = make_frame(0)
+    a.vehicle_index = a.vehicle_index.copy()
+    a.vehicle_index[0] = 99
+    with pytest.raises(EncodeError, match="vehicle_index"):
+        encode(a)
+
+
+# ---- every corrupted frame is rejected ----------------------------------------------------
+
+def small_frame_bytes() -> bytes:
+    return encode(make_frame(7, V=2, K=3, B=2, sender="c"))
+
+
+def test_every_single_byte_corruption_is_rejected():
+    data = small_frame_bytes()
+    assert len(data) > 100
+    for pos in range(len(data)):
+        for flip in (0x01, 0x80, 0xFF):
+            bad = bytearray(data)
+            bad[pos] ^= flip
+            with pytest.raises(DecodeError):
+                decode(bytes(bad))
+
+
+def test_every_truncation_and_extension_is_rejected():
+    data = small_frame_bytes()
+    for cut in range(len(data)):
+        with pytest.raises(DecodeError):
+            decode(data[:cut])
+    for extra in (b"\x00", b"\xff" * 3, data):
+        with pytest.raises(DecodeError):
+            decode(data + extra)
+
+
+def _recrc(body: bytes) -> bytes:
+    """Re-seal a tampered frame with a correct CRC (to reach the checks after it)."""
+    body = body[:6] + struct.pack("<I", len(body) + 4) + body[10:]
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+def test_counts_are_checked_against_the_bytes_even_with_a_valid_crc():
+    data = small_frame_bytes()
+    body = data[:-4]
+    meta = 4 + 1 + 1 + 4 + 1 + 1            # header + sender length + "c"
+    counts_at = meta + 4 + 8 + 4 + 4         # seq, stamp, height, velocity
+    for k in range(3):                       # V, K, B each off by one
+        bad = bytearray(body)
+        bad[counts_at + 2 * k] += 1
+        with pytest.raises(DecodeError, match="counts"):
+            decode(_recrc(bytes(bad)))
+    # one vehicle claims one point more: the byte sizes agree, the per-vehicle sum does not
+    veh_at = counts_at + 6
+    n_points_at = veh_at + 8 + 1 + 2 + 2
+    bad = bytearray(body)
+    bad[n_points_at] += 1
+    with pytest.raises(DecodeError, match="claim"):
+        decode(_recrc(bytes(bad)))
+    bad = bytearray(body)                    # sender length beyond the limit
+    bad[10] = 200
+    with pytest.raises(DecodeError):
+        decode(_recrc(bytes(bad)))
+    bad = bytearray(body)                    # invalid UTF-8 sender
+    bad[11] = 0xFF
+    with pytest.raises(DecodeError, match="UTF-8"):
+        decode(_recrc(bytes(bad)))
+    bad = bytearray(body)                    # NaN stamp
+    bad[counts_at - 16:counts_at - 8] = struct.pack("<d", float("nan"))
+    with pytest.raises(DecodeError, match="finite"):
+        decode(_recrc(bytes(bad)))
+    assert decode(_recrc(body)).sender == "c"      # the re-sealing itself is sound
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: b"XXXX" + d[4:], "magic"),
+    (lambda d: d[:4] + b"\x02" + d[5:], "version"),
+    (lambda d: d[:5] + b"\x01" + d[6:], "flags"),
+])
+def test_header_errors_are_named(mutate, message):
+    with pytest.raises(DecodeError, match=message):
+        decode(mutate(small_frame_bytes()))
+
+
+def test_non_bytes_input_is_a_decode_error():
+    for junk in (None, 42, "MMSF", [1, 2, 3]):
+        with pytest.raises(DecodeError):
+            decode(junk)
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.binary(max_size=600))
+def test_fuzz_random_bytes_only_raise_decode_error(data):
+    with pytest.raises(DecodeError):
+        decode(data)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=300))
+def test_fuzz_bytes_behind_a_valid_header_only_raise_decode_error(tail):
+    body = MAGIC + b"\x01\x00" + struct.pack("<I", 10 + len(tail) + 4) + tail
+    try:
+        frame = decode(body + struct.pack("<I", zlib.crc32(body)))
+    except DecodeError:
+        return
+    assert isinstance(frame, SharedFrame)   # a well-formed accident is fine; never another error
