@@ -56,6 +56,9 @@ class RadarSection:
     dca_data_port: int = _opt(4098, lo=1, hi=65535)
     dca_config_port: int = _opt(4096, lo=1, hi=65535)
     path: str = _opt("", doc="replay: MCAP log or raw UART capture")
+    pace: str = _opt("recorded", choices=("recorded", "fast"),
+                     doc="replay: at the recorded pace (log times; baud rate for raw captures) or as fast as possible")
+    speed: float = _opt(1.0, lo=0.0, lo_open=True, hi=1000.0, doc="replay: pace multiplier")
     height_m: float = _opt(1.0, lo=0.0, hi=10.0, doc="radar mounting height above the road, m")
     reconnect_s: float = _opt(1.0, lo=0.0, lo_open=True, hi=60.0, doc="wait between reopen attempts")
     read_timeout_s: float = _opt(0.2, lo=0.0, lo_open=True, hi=10.0)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import base64
 import json
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -184,3 +185,24 @@ def frame_from_json(msg: dict, points: np.ndarray) -> SensorFrame:
             frame_number=int(msg.get("frame_number", -1)), host_time=float(msg.get("host_time", 0.0)))
     except (KeyError, TypeError, ValueError) as exc:
         raise ParseError(f"bad frame record: {exc}") from exc
+
+
+def camera_to_meta(camera: Any, radar_height: float) -> dict[str, str]:
+    """MCAP metadata (string map) holding the camera model and the radar height."""
+    return {"K": json.dumps(np.asarray(camera.K, float).tolist()),
+            "image_size": json.dumps([int(v) for v in camera.image_size]),
+            "T_cam_radar": json.dumps(np.asarray(camera.T_cam_radar, float).tolist()),
+            "radar_height": repr(float(radar_height))}
+
+
+def camera_from_meta(meta: dict[str, str]) -> tuple[Any, float]:
+    """(CameraModel, radar_height m) back from `camera_to_meta`."""
+    from mmatch.types import CameraModel
+
+    try:
+        K = np.array(json.loads(meta["K"]), np.float64).reshape(3, 3)
+        size = tuple(int(v) for v in json.loads(meta["image_size"]))
+        T = np.array(json.loads(meta["T_cam_radar"]), np.float64).reshape(4, 4)
+        return CameraModel(K=K, image_size=(size[0], size[1]), T_cam_radar=T), float(meta["radar_height"])
+    except (KeyError, ValueError, TypeError) as exc:
+        raise ParseError(f"bad camera metadata: {exc}") from exc

@@ -168,6 +168,9 @@ class VehicleLoop:
             self.node = Node(cfg, pipeline, camera.camera, height, publish=publish, recorder=recorder,
                              wait_s=cfg.ego.wait_s)
             self.node.on_result = self._on_result
+        if recorder is not None and hasattr(camera, "camera"):
+            height = getattr(radar, "radar_height", cfg.radar.height_m)
+            recorder.set_metadata("camera", logschema.camera_to_meta(camera.camera, height))
         if recorder is not None and cfg.log.raw:
             radar.raw_sink = lambda data: recorder.write(logschema.RAW_UART, data)
 
@@ -186,6 +189,8 @@ class VehicleLoop:
                 keyexpr = keys.all_of("shared")
             self.transport.subscribe(keyexpr, "shared", self.node.on_shared,
                                      vehicles=list(cfg.ego.cavs) or None)
+        if self.node is not None:
+            self.node.warm_up()
         readers = [SensorReader("radar", self.radar, self.radar_q.put, self.stop, cfg.radar.reconnect_s,
                                 cfg.radar.read_timeout_s)]
         if cfg.camera.source not in ("none",):

@@ -8,6 +8,7 @@ package imports without them and a test can hand in its own `Pipeline`.
 from __future__ import annotations
 
 import importlib
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -36,7 +37,17 @@ def _get(module: str, name: str) -> Callable:
 
 
 def default_pipeline(*, need_fuse: bool = True) -> Pipeline:
-    """The product pipeline; `need_fuse=False` lets a CAV run without the fusion module."""
+    """The product pipeline; `need_fuse=False` lets a CAV run without the fusion module.
+
+    $MMATCH_PIPELINE="module:attr" names another `Pipeline` (for tests and experiments).
+    """
+    override = os.environ.get("MMATCH_PIPELINE")
+    if override:
+        module, _, attr = override.partition(":")
+        pipe = _get(module, attr or "PIPELINE")
+        if not isinstance(pipe, Pipeline):
+            raise MMatchError(f"pipeline: $MMATCH_PIPELINE={override!r} is not a Pipeline")
+        return pipe
     fuse = _get("mmatch.fusion", "fuse") if need_fuse else _no_fuse
     return Pipeline(process_view=_get("mmatch.cav.process", "process_view"),
                     encode=_get("mmatch.codec", "encode"), decode=_get("mmatch.codec", "decode"),

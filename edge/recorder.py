@@ -94,6 +94,7 @@ class Recorder:
         self._last_flush = 0.0
         self._last_disk_check = -1e9
         self._free = 1 << 62
+        self._metadata: dict[str, dict[str, str]] = {}
         self.files: list[Path] = []
         self.written = 0
         self.dropped: dict[str, int] = collections.Counter()
@@ -142,6 +143,8 @@ class Recorder:
         self._writer.start(profile="", library="mmatch-edge")
         if self.config_text:
             self._writer.add_metadata("config", {"toml": self.config_text})
+        for name, meta in self._metadata.items():
+            self._writer.add_metadata(name, meta)
         self._channels.clear()
         self._schemas.clear()
         self._opened_at = time.monotonic()
@@ -166,6 +169,13 @@ class Recorder:
                 return
             self._closed = True
             self._finish_file()
+
+    def set_metadata(self, name: str, meta: dict[str, str]) -> None:
+        """A metadata record written now and at the start of every later file."""
+        with self._lock:
+            self._metadata[name] = dict(meta)
+            if self._writer is not None:
+                self._writer.add_metadata(name, dict(meta))
 
     # ------------------------------------------------------------------ disk
     def _check_disk(self, force: bool = False) -> None:

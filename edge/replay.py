@@ -1,0 +1,292 @@
+"""Replay: field logs and raw UART captures back through the per-frame Node.
+
+A log (MCAP file or folder) becomes a stream of events in the order the live loop saw
+them: own sensor frames (point cloud + frame record, joined by capture stamp) and shared
+frames received from other vehicles. Fed to a `Node` in that order, they reproduce the
+live fused results (`compare_fused`). A raw UART capture (the bytes of a data port)
+becomes radar frames through the TI streaming reader, the same parser a live port uses.
+Pacing: as fast as possible, or at the recorded pace (log times; for raw captures the
+serial line rate, 10 bits per byte).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edge import logreader, logschema
+from edge.logschema import SensorFrame
+from mmatch.errors import ParseError
+from mmatch.types import RadarFrame
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Event:
+    """kind: "frame" (own sensor frame), "rx" (shared frame from `vehicle`), "fused"
+    (a recorded fusion result), "raw" (raw sensor bytes)."""
+
+    kind: str
+    log_time_ns: int
+    frame: SensorFrame | None = None
+    vehicle: str = ""
+    data: bytes = b""
+    msg: dict | None = None
+
+
+class Pacer:
+    """Sleeps so that event times (ns) are replayed at `speed` x real time; no-op when fast."""
+
+    def __init__(self, fast: bool, speed: float = 1.0, sleep: Callable[[float], None] = time.sleep) -> None:
+        self.fast, self.speed, self.sleep = fast, speed, sleep
+        self._t0: tuple[int, float] | None = None
+
+    def wait(self, t_ns: int) -> None:
+        if self.fast:
+            return
+        if self._t0 is None:
+            self._t0 = (t_ns, time.monotonic())
+            return
+        due = self._t0[1] + (t_ns - self._t0[0]) / 1e9 / self.speed
+        delay = due - time.monotonic()
+        if delay > 0:
+            self.sleep(delay)
+
+
+def log_events(path: str | Path, report: logreader.LogReport | None = None,
+               raw: bool = False) -> Iterator[Event]:
+    """The events of a log in file order (= the live loop's order)."""
+    pending: dict[int, np.ndarray] = {}
+    for m in logreader.read_messages(path, report=report):
+        try:
+            if m.topic == logschema.POINTS:
+                pts, stamp = logschema.points_from_json(json.loads(m.data))
+                pending[logschema.stamp_key(stamp)] = pts
+                if len(pending) > 64:
+                    pending.pop(next(iter(pending)))
+            elif m.topic == logschema.FRAME:
+                msg = json.loads(m.data)
+                pts = pending.pop(int(msg["stamp_ns"]), None)
+                if pts is None:
+                    log.warning("frame %s has no point cloud in the log; skipped", msg.get("seq"))
+                    continue
+                yield Event("frame", m.log_time_ns, frame=logschema.frame_from_json(msg, pts))
+            elif m.topic.startswith(logschema.SHARED_RX_PREFIX):
+                yield Event("rx", m.log_time_ns, vehicle=m.topic[len(logschema.SHARED_RX_PREFIX):],
+                            data=m.data)
+            elif m.topic == logschema.FUSED:
+                yield Event("fused", m.log_time_ns, msg=json.loads(m.data))
+            elif raw and m.topic == logschema.RAW_UART:
+                yield Event("raw", m.log_time_ns, data=m.data)
+        except (ParseError, ValueError, KeyError, TypeError) as exc:
+            log.warning("skipping a bad %s record: %s", m.topic, exc)
+
+
+def log_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """The metadata records of a log's first file, by name ("config", "camera")."""
+    report = logreader.LogReport()
+    for _ in logreader.read_messages(path, report=report):
+        break  # metadata comes right after the header, before any message
+    return {k.split(":", 1)[1]: v for k, v in report.metadata.items()}
+
+
+def log_config_text(path: str | Path) -> str | None:
+    """The effective config TOML stored in a log, if any."""
+    return log_metadata(path).get("config", {}).get("toml")
+
+
+def capture_frames(path: str | Path, *, pace_baud: int | None = None, chunk: int = 4096,
+                   sleep: Callable[[float], None] = time.sleep,
+                   stats_out: dict | None = None) -> Iterator[RadarFrame]:
+    """Radar frames of a raw UART capture through the TI streaming reader.
+
+    pace_baud: feed bytes at this line rate (8N1: 10 bits per byte), else as fast as possible.
+    """
+    from drivers.ti.reader import TlvReader
+
+    reader = TlvReader(on_error="log")
+    t0 = time.monotonic()
+    sent = 0
+    with open(path, "rb") as f:
+        while True:
+            data = f.read(chunk)
+            if not data:
+                break
+            if pace_baud:
+                due = t0 + (sent + len(data)) * 10 / pace_baud
+                delay = due - time.monotonic()
+                if delay > 0:
+                    sleep(delay)
+            sent += len(data)
+            now = time.time()
+            for pkt in reader.feed(data):
+                yield pkt.radar_frame(now)
+        for pkt in reader.finish():
+            yield pkt.radar_frame(time.time())
+    if stats_out is not None:
+        stats_out.update(reader.stats.as_dict())
+
+
+def compare_fused(recorded: list[dict], replayed: list[dict], atol: float = 1e-6) -> dict[str, Any]:
+    """Match fused results by seq and compare them without wall-clock fields."""
+    from edge.node import comparable
+
+    rep = {m["seq"]: comparable(m) for m in replayed}
+    same, differ, missing = 0, [], []
+    for m in recorded:
+        r = rep.get(m["seq"])
+        if r is None:
+            missing.append(m["seq"])
+        elif _close(comparable(m), r, atol):
+            same += 1
+        else:
+            differ.append(m["seq"])
+    return {"recorded": len(recorded), "replayed": len(replayed), "same": same,
+            "differ": differ, "missing": missing}
+
+
+def _close(a: Any, b: Any, atol: float) -> bool:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k], atol) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_close(x, y, atol) for x, y in zip(a, b))
+    if isinstance(a, float) or isinstance(b, float):
+        try:
+            return abs(float(a) - float(b)) <= atol * max(1.0, abs(float(a)))
+        except (TypeError, ValueError):
+            return False
+    return a == b
+
+
+def _replay_config(log_path: str | Path, is_log: bool, config_path: str | None, sets: list[str]) -> Any:
+    import tomllib
+
+    from edge import config as cfgmod
+    from edge.commands.run import parse_overrides
+
+    overrides = parse_overrides(sets)
+    if config_path:
+        data = tomllib.loads(Path(config_path).read_text())
+    else:
+        text = log_config_text(log_path) if is_log else None
+        data = tomllib.loads(text) if text else {"vehicle": {"id": "replay", "role": "cav"}}
+    data = cfgmod.merge(data, {"log": {"dir": ""}})  # never write into the log being read
+    data = cfgmod.merge(data, overrides)
+    return cfgmod.from_dict(data, source=str(config_path or log_path))
+
+
+def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] = (), fast: bool = False,
+           speed: float = 1.0, process: bool = True, publish: bool = False, log_dir: str | None = None,
+           fused_out: str | None = None, frames_out: str | None = None,
+           compare: bool = False) -> dict[str, Any]:
+    """Replay a log or capture through a `Node`; returns a summary dict.
+
+    A log replays its own frames and the shared frames it received, in the recorded order;
+    a raw UART capture yields radar frames (no camera) through the TI streaming reader.
+    """
+    import contextlib
+
+    from edge import config as cfgmod
+    from edge.node import Node
+    from edge.pipeline import default_pipeline
+    from edge.recorder import Recorder
+    from edge.sources.base import default_camera
+    from edge.transport import Transport
+    from mmatch.errors import DecodeError, MMatchError
+
+    path = Path(path)
+    if not path.exists():
+        raise ParseError(f"{path}: no such file or folder")
+    is_log = path.is_dir() or logreader.is_mcap(path)
+    cfg = _replay_config(path, is_log, config_path, list(sets))
+    camera, height = default_camera(), cfg.radar.height_m
+    if is_log:
+        meta = log_metadata(path).get("camera")
+        if meta:
+            camera, height = logschema.camera_from_meta(meta)
+    summary: dict[str, Any] = {"log": str(path), "kind": "mcap" if is_log else "uart-capture",
+                               "role": cfg.vehicle.role, "vehicle": cfg.vehicle.id}
+    fused: list[dict] = []
+    recorded: list[dict] = []
+    frames_json: list[dict] = []
+    rx_bad = 0
+    report = logreader.LogReport()
+    t0 = time.perf_counter()
+    with contextlib.ExitStack() as stack:
+        recorder = None
+        if log_dir:
+            recorder = stack.enter_context(Recorder(
+                cfgmod.from_dict(cfgmod.merge(cfgmod.to_dict(cfg), {"log": {"dir": log_dir}})).log,
+                prefix=f"replay-{cfg.vehicle.id}", config_text=cfgmod.to_toml(cfg)))
+            recorder.set_metadata("camera", logschema.camera_to_meta(camera, height))
+        transport = stack.enter_context(Transport(cfg.zenoh)) if publish else None
+        node = None
+        if process:
+            pipeline = default_pipeline(need_fuse=cfg.is_ego)
+            node = Node(cfg, pipeline, camera, height, publish=transport.put if transport else None,
+                        recorder=recorder)
+            node.on_result = fused.append
+        pacer = Pacer(fast, speed)
+        if is_log:
+            events: Iterator[Event] = log_events(path, report)
+        else:
+            cap_stats: dict = {}
+            baud = None if fast else int(cfg.radar.baudrate * speed)
+            events = (Event("frame", int(f.host_time * 1e9), frame=SensorFrame(
+                seq=i + 1, stamp=f.stamp, points=np.asarray(f.points, np.float32),
+                boxes=np.zeros((0, 6), np.float32), features=np.zeros((0, 32), np.float32),
+                frame_number=f.frame_number, host_time=f.host_time))
+                for i, f in enumerate(capture_frames(path, pace_baud=baud, stats_out=cap_stats)))
+        n_frames = 0
+        for ev in events:
+            if ev.kind == "fused":
+                recorded.append(ev.msg)
+                continue
+            if is_log:
+                pacer.wait(ev.log_time_ns)
+            if ev.kind == "frame":
+                n_frames += 1
+                f = ev.frame
+                if frames_out:
+                    frames_json.append({"seq": f.seq, "frame_number": f.frame_number,
+                                        "points": np.asarray(f.points, np.float64).tolist()})
+                if node is not None:
+                    try:
+                        node.process(f)
+                    except MMatchError as exc:
+                        log.warning("frame %d: %s", f.seq, exc)
+            elif ev.kind == "rx" and node is not None:
+                try:
+                    node.on_shared(ev.vehicle, ev.data)
+                except DecodeError:
+                    rx_bad += 1
+    summary.update(frames=n_frames, fused_results=len(fused), rx_rejected=rx_bad,
+                   seconds=round(time.perf_counter() - t0, 3),
+                   truncated=report.truncated, files=report.files)
+    if not is_log:
+        summary["reader"] = cap_stats
+    if node is not None:
+        summary["node"] = node.summary()
+        statuses: dict[str, int] = {}
+        for m in fused:
+            statuses[m["status"]] = statuses.get(m["status"], 0) + 1
+        summary["status_counts"] = statuses
+    if compare:
+        summary["compare"] = compare_fused(recorded, fused)
+    if fused_out:
+        with open(fused_out, "w") as f:
+            for m in fused:
+                f.write(json.dumps(m) + "\n")
+    if frames_out:
+        with open(frames_out, "w") as f:
+            json.dump({"frames": len(frames_json), "frame_numbers": [x["frame_number"] for x in frames_json],
+                       "points": [x["points"] for x in frames_json]}, f)
+    return summary

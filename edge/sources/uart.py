@@ -1,0 +1,113 @@
+"""TI radar on a serial data port (921600 8N1): raw bytes -> TI streaming reader -> frames.
+
+The bytes are handed to `raw_sink` (the field log) as they arrive, then to
+`drivers.ti.reader.TlvReader`, which resynchronises on junk and counts rejects. A port
+that disappears (USB unplug) raises `DeviceError`; the loop reopens it, and the reader
+state starts fresh (a frame cut by the unplug is dropped and counted).
+Optionally the chirp profile is sent over the CLI port at open.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from typing import Any
+
+from edge.config import VehicleConfig
+from edge.sources.base import RadarSource
+from mmatch.errors import DeviceError
+from mmatch.types import RadarFrame
+
+log = logging.getLogger(__name__)
+
+
+class UartRadar(RadarSource):
+    """`radar.port` may be a device path or a pyserial URL (loop://, socket://...)."""
+
+    def __init__(self, cfg: VehicleConfig, **kw: Any) -> None:
+        self.cfg = cfg
+        self.port = cfg.radar.port
+        self._ser: Any = None
+        self._reader: Any = None
+        self._pending: deque[RadarFrame] = deque()
+        self._stats_total: dict[str, int] = {"opens": 0, "bytes": 0}
+        self._frames = 0
+
+    def open(self) -> None:
+        import serial
+
+        from drivers.ti.reader import TlvReader
+
+        if self.cfg.radar.cli_port and self.cfg.radar.cfg:
+            self._configure()
+        try:
+            self._ser = serial.serial_for_url(self.port, baudrate=self.cfg.radar.baudrate,
+                                              timeout=0.05, exclusive=None)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceError(f"radar uart {self.port}: cannot open: {exc}") from exc
+        chirp = None
+        if self.cfg.radar.cfg:
+            try:
+                from drivers.ti.cfg import load_cfg
+
+                chirp = load_cfg(self.cfg.radar.cfg).chirp
+            except Exception as exc:
+                log.warning("radar cfg %s not used for Doppler scaling: %s", self.cfg.radar.cfg, exc)
+        self._reader = TlvReader(on_error="log", chirp=chirp)
+        self._stats_total["opens"] += 1
+        log.info("radar uart open: %s at %d baud", self.port, self.cfg.radar.baudrate)
+
+    def _configure(self) -> None:
+        try:
+            from drivers.ti import cli  # the TI driver's config sender
+        except ImportError:
+            log.warning("radar: drivers.ti.cli not available; not sending %s", self.cfg.radar.cfg)
+            return
+        send = getattr(cli, "send_cfg", None) or getattr(cli, "configure", None)
+        if send is None:
+            log.warning("radar: no config sender in drivers.ti.cli; not sending %s", self.cfg.radar.cfg)
+            return
+        send(self.cfg.radar.cli_port, self.cfg.radar.cfg)
+
+    def read(self, timeout: float) -> RadarFrame | None:
+        if self._ser is None:
+            raise DeviceError(f"radar uart {self.port}: not open")
+        import serial
+
+        deadline = time.monotonic() + timeout
+        while not self._pending:
+            try:
+                n = max(1, min(self._ser.in_waiting, 65536))
+                data = self._ser.read(n)
+            except (serial.SerialException, OSError, TypeError) as exc:
+                # pyserial raises TypeError/OSError from in_waiting on a vanished device
+                raise DeviceError(f"radar uart {self.port}: {exc}") from exc
+            if data:
+                self._stats_total["bytes"] += len(data)
+                if self.raw_sink is not None:
+                    self.raw_sink(data)
+                now = time.time()
+                for pkt in self._reader.feed(data):
+                    self._pending.append(pkt.radar_frame(now))
+            elif time.monotonic() >= deadline:
+                return None
+        self._frames += 1
+        return self._pending.popleft()
+
+    def counters(self) -> dict[str, int]:
+        out = dict(self._stats_total)
+        if self._reader is not None:
+            s = self._reader.stats
+            out.update(frames=s.frames, bytes_skipped=s.bytes_skipped, rejected=s.rejected_total,
+                       restarts=s.restarts, frame_gaps=s.frame_gaps)
+        return out
+
+    def close(self) -> None:
+        ser, self._ser = self._ser, None
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception as exc:
+                log.debug("uart close: %s", exc)
+        self._pending.clear()
