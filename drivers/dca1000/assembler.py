@@ -106,6 +106,7 @@ class FrameAssembler:
         self._next: int | None = None     # index of the next frame to emit
         self._high = 0                    # highest stream byte seen (exclusive)
         self._expect: int | None = None   # byte count expected for the next in-order packet
+        self._emitted = False
 
     # ------------------------------------------------------------------------------------------
     def add(self, seq: int, byte_count: int, payload) -> list[AdcFrame]:
@@ -147,8 +148,8 @@ class FrameAssembler:
                 return self._release(False)
         F = self.frame_bytes
         k = byte_count // F
-        if self._next is None:
-            self._next = k
+        if self._next is None or (k < self._next and not self._emitted):
+            self._next = k  # nothing emitted yet: a reordered packet may still open an earlier frame
         elif k < self._next:
             if (end - 1) // F < self._next:
                 st.late += 1
@@ -183,6 +184,13 @@ class FrameAssembler:
     # ------------------------------------------------------------------------------------------
     def _release(self, final: bool) -> list[AdcFrame]:
         out: list[AdcFrame] = []
+        try:
+            self._release_into(out, final)
+        finally:
+            self._emitted = self._emitted or bool(out) or self.stats.frames_dropped > 0 or self.stats.frames_lost > 0
+        return out
+
+    def _release_into(self, out: list, final: bool) -> None:
         F = self.frame_bytes
         st = self.stats
         while self._pending and self._next is not None:
@@ -218,4 +226,3 @@ class FrameAssembler:
             else:
                 st.frames_dropped += 1
             log.debug("frame %d incomplete: %d bytes missing", k, missing)
-        return out
