@@ -57,9 +57,10 @@ SNR_FLOOR_DB = -30.0
 OK, NEED_MORE, REJECT = "ok", "need_more", "reject"
 
 REASONS: tuple[str, ...] = (
-    "truncated",            # packet cut short: stream ended or a later magic word proves it
+    "truncated",            # the stream ends inside the frame
     "bad_length",           # totalPacketLen smaller than the header or absurdly large
-    "magic_inside_packet",  # another magic word starts inside the declared packet
+    "magic_inside_packet",  # another magic word starts inside the header or declared packet
+                            # (a frame cut short by lost bytes: the next frame begins in it)
     "header_checksum",      # 48-byte people-counting header checksum fails
     "tlv_out_of_bounds",    # a TLV header or payload runs past the packet
     "bad_tlv_length",       # a TLV length that cannot be (48-B format length < 8)
@@ -69,6 +70,7 @@ REASONS: tuple[str, ...] = (
 )
 
 _TLV_HDR = struct.Struct("<2I")
+_HEAD_REGION = 48 + len(MAGIC) - 1  # largest header + where a magic word starting in it ends
 _EMPTY5 = np.zeros((0, 5), np.float32)
 
 
@@ -132,13 +134,18 @@ def decode_frame(buf: bytes | bytearray, offset: int = 0, end: int | None = None
     avail = end - offset
     if buf[offset:offset + 8] != MAGIC:
         return _reject("bad_length", "no magic word at offset")  # caller error; never from the reader
+    # Decide nothing before the largest header plus a magic word's length is in (or the
+    # stream ended, or a later magic word shows up): the verdict, and its reason, then do
+    # not depend on how the bytes were chunked.
+    head_stop = min(end, offset + _HEAD_REGION)
+    if avail < _HEAD_REGION and not final and _later_magic(buf, offset, end) < 0:
+        return _NEED_MORE
+    inner = _later_magic(buf, offset, head_stop)
+    if inner >= 0:
+        return _reject("magic_inside_packet", f"magic word at +{inner - offset} inside the header")
     if avail < 20:
-        return _short(buf, offset, end, final, "header")
+        return _reject("truncated", "stream ends inside the header")
     formats = candidate_formats(buf, offset, avail)
-    if formats == [HeaderFormat.H40] and avail < 48 and not final:
-        # H48 cannot be ruled out before its checksum is readable
-        if _later_magic(buf, offset, end) < 0:
-            return _NEED_MORE
     if prefer is not None and prefer in formats and formats[0] is not prefer:
         formats = [prefer] + [f for f in formats if f is not prefer]
     first: DecodeResult | None = None
@@ -157,11 +164,20 @@ def _later_magic(buf: bytes | bytearray, offset: int, stop: int) -> int:
     return buf.find(MAGIC, offset + 8, stop)
 
 
+def _magic_prefix_at_tail(buf: bytes | bytearray, lo: int, end: int) -> bool:
+    """True if some buf[s:end], lo <= s < end, is a proper prefix of the magic word."""
+    for s in range(max(lo, end - len(MAGIC) + 1), end):
+        if MAGIC.startswith(buf[s:end]):
+            return True
+    return False
+
+
 def _short(buf: bytes | bytearray, offset: int, end: int, final: bool, what: str) -> DecodeResult:
+    inner = _later_magic(buf, offset, end)
+    if inner >= 0:
+        return _reject("magic_inside_packet", f"magic word at +{inner - offset} cuts the {what} short")
     if final:
         return _reject("truncated", f"stream ends inside the {what}")
-    if _later_magic(buf, offset, end) >= 0:
-        return _reject("truncated", f"a magic word follows before the {what} is complete")
     return _NEED_MORE
 
 
@@ -177,9 +193,12 @@ def _decode_as(buf: bytes | bytearray, offset: int, end: int, final: bool, fmt: 
     pkt_end = offset + total
     if pkt_end > end:
         return _short(buf, offset, end, final, f"{total}-byte packet")
-    inner = _later_magic(buf, offset, pkt_end)
+    # a magic word *starting* before pkt_end may run up to 7 bytes past it
+    inner = _later_magic(buf, offset, min(end, pkt_end + len(MAGIC) - 1))
     if inner >= 0:
         return _reject("magic_inside_packet", f"magic word at +{inner - offset} inside a {total}-byte packet")
+    if not final and end < pkt_end + len(MAGIC) - 1 and _magic_prefix_at_tail(buf, max(offset + 8, end - 7), end):
+        return _NEED_MORE  # the last bytes may begin a magic word that starts inside the packet
 
     major = version_major(hdr.version)
     registry = PC3D_TLVS if fmt is HeaderFormat.H48 else OOB_TLVS

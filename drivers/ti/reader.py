@@ -181,7 +181,7 @@ class TlvReader:
                 assert pkt is not None
                 if now is None:
                     now = self.clock()
-                pkt = replace(pkt, host_time=now)
+                pkt = replace(pkt, host_time=now, offset=self._base + i)
                 self._accept(pkt)
                 out.append(pkt)
                 pos = search = i + res.length

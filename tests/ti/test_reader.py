@@ -1,0 +1,119 @@
+"""Streaming reader: named corrupt-stream fixtures, chunking, counters, bad-input policy."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from drivers.ti.reader import TlvReader, read_all
+from drivers.ti.writer import encode_frame, encode_stream
+from mmatch.errors import DecodeError
+
+from .helpers import make_points, named_fixtures
+
+FIXTURES = named_fixtures()
+
+
+@pytest.mark.parametrize("name", sorted(FIXTURES))
+@pytest.mark.parametrize("chunk", [None, 1, 7, 100])
+def test_named_fixture(name, chunk):
+    data, want = FIXTURES[name]
+    packets, st = read_all(data, chunk=chunk)
+    assert [p.header.frame_number for p in packets] == want["frames"]
+    assert dict(st.rejected) == want["rejected"]
+    assert st.bytes_skipped == want["skipped"]
+    assert st.frames == len(want["frames"])
+    assert st.bytes_in == len(data)
+    assert st.restarts == want.get("restarts", 0)
+    # accepted + skipped bytes account for the whole stream
+    assert sum(p.length for p in packets) + st.bytes_skipped == len(data)
+
+
+def test_rejections_carry_stream_offsets():
+    data, _ = FIXTURES["dropped_byte.bin"]
+    packets, st = read_all(data, chunk=13)
+    first_len = packets[0].length
+    assert st.rejections == [(first_len, "magic_inside_packet")]
+    assert [p.offset for p in packets][:1] == [0]
+    assert packets[1].offset == len(data) - packets[1].length - packets[2].length
+
+
+def test_points_survive_chunking_exactly():
+    frames = [make_points(n, seed=n) for n in (0, 3, 50, 7)]
+    data = encode_stream(frames, "sdk3", first_frame=1)
+    a, _ = read_all(data)
+    b, _ = read_all(data, chunk=5)
+    assert len(a) == len(b) == 4
+    for pa, pb, src in zip(a, b, frames):
+        np.testing.assert_array_equal(pa.points, pb.points)
+        np.testing.assert_array_equal(pa.points[:, :4], src[:, :4])
+
+
+def test_incomplete_frame_waits_for_bytes():
+    f = encode_frame(make_points(20), 5, "sdk3")
+    r = TlvReader(on_error="skip")
+    assert r.feed(f[:100]) == []
+    assert r.stats.rejected_total == 0 and r.stats.bytes_skipped == 0
+    out = r.feed(f[100:])
+    assert [p.header.frame_number for p in out] == [5]
+    assert r.finish() == [] and r.stats.bytes_skipped == 0
+
+
+def test_host_time_is_receive_time():
+    t = iter([100.0, 200.0])
+    r = TlvReader(clock=lambda: next(t))
+    a = r.feed(encode_frame(make_points(2), 1))
+    b = r.feed(encode_frame(make_points(2), 2))
+    assert a[0].host_time == 100.0 and b[0].host_time == 200.0
+    rf = r.to_radar_frame(b[0])
+    assert rf.host_time == 200.0 and rf.frame_number == 2 and rf.points.shape == (2, 5)
+
+
+def test_frame_gaps_and_tlv_counters():
+    data = b"".join(encode_frame(make_points(3), fn, "sdk3") for fn in (1, 2, 5, 6))
+    _, st = read_all(data)
+    assert st.frame_gaps == 2 and st.restarts == 0
+    assert dict(st.tlv_types) == {1: 4, 7: 4}
+    d = st.as_dict()
+    assert d["tlv_types"] == {"1": 4, "7": 4} and d["formats"] == {"h40": 4}
+
+
+def test_policy_log_skip_raise(caplog):
+    data, _ = FIXTURES["second_magic_inside.bin"]
+    with caplog.at_level(logging.WARNING, logger="drivers.ti.reader"):
+        read_all(data, on_error="log")
+    assert "magic_inside_packet" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="drivers.ti.reader"):
+        read_all(data, on_error="skip")
+    assert caplog.text == ""
+    r = TlvReader(on_error="raise")
+    errors, fns = [], []
+    chunks = [data] + [b""] * 5
+    for chunk in chunks:  # the reader stays usable after each error
+        try:
+            fns += [p.header.frame_number for p in r.feed(chunk)]
+        except DecodeError as exc:
+            errors.append(str(exc))
+    fns += [p.header.frame_number for p in r.finish()]
+    assert fns == [10, 12]
+    assert len(errors) == 2 and "magic_inside_packet" in errors[0] and "bad_length" in errors[1]
+    assert r.stats.frames == 2 and r.stats.rejected_total == 2
+
+
+def test_pure_garbage_never_raises():
+    rng = np.random.default_rng(3)
+    junk = rng.integers(0, 256, 200_000, dtype=np.uint8).tobytes()
+    magic_rich = (b"\x02\x01\x04\x03\x06\x05\x08\x07" + junk[:40]) * 500
+    for data in (junk, magic_rich, b"", b"\x02"):
+        packets, st = read_all(data, chunk=4096)
+        assert st.bytes_skipped + sum(p.length for p in packets) == len(data)
+    _, st = read_all(magic_rich)
+    assert st.frames == 0 and st.rejected_total == 500
+
+
+def test_bad_policy_name():
+    with pytest.raises(ValueError):
+        TlvReader(on_error="ignore")
