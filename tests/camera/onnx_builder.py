@@ -104,19 +104,25 @@ def constant_model(outputs: dict[str, np.ndarray], input_shape: tuple = (1, 3, 6
 
 
 def int8_constant_model(outputs: dict[str, np.ndarray], input_shape: tuple = (1, 3, 64, 64),
-                        input_name: str = "images") -> tuple[bytes, dict[str, np.ndarray]]:
-    """Like `constant_model` but each output is DequantizeLinear(int8 weights, scale, 0): an
-    INT8-quantized graph. Returns the model and the exact float outputs it produces."""
+                        input_name: str = "images", axis: int = -1) -> tuple[bytes, dict[str, np.ndarray]]:
+    """Like `constant_model` but each output is DequantizeLinear(int8 weights, scale, 0) with one
+    scale per slice along `axis` (per-channel, as quantizers do): an INT8-quantized graph.
+    Returns the model and the exact float outputs it produces."""
     nodes, outs, inits, exact = [], [], [], {}
     for name, arr in outputs.items():
         arr = np.asarray(arr, np.float32)
-        scale = np.float32(max(float(np.abs(arr).max()), 1e-6) / 127.0)
-        q = np.clip(np.round(arr / scale), -127, 127).astype(np.int8)
-        inits += [tensor(name + "_q", q), tensor(name + "_s", np.array(scale, np.float32)),
-                  tensor(name + "_z", np.array(0, np.int8))]
-        nodes.append(node("DequantizeLinear", [name + "_q", name + "_s", name + "_z"], [name]))
+        ax = axis % arr.ndim
+        other = tuple(i for i in range(arr.ndim) if i != ax)
+        scale = (np.maximum(np.abs(arr).max(axis=other), 1e-6) / 127.0).astype(np.float32)
+        shape = [1] * arr.ndim
+        shape[ax] = -1
+        q = np.clip(np.round(arr / scale.reshape(shape)), -127, 127).astype(np.int8)
+        inits += [tensor(name + "_q", q), tensor(name + "_s", scale),
+                  tensor(name + "_z", np.zeros(scale.shape, np.int8))]
+        nodes.append(node("DequantizeLinear", [name + "_q", name + "_s", name + "_z"], [name],
+                          attrs=[attr_int("axis", ax)]))
         outs.append(value_info(name, FLOAT, arr.shape))
-        exact[name] = q.astype(np.float32) * scale
+        exact[name] = q.astype(np.float32) * scale.reshape(shape)
     return model(nodes, [value_info(input_name, FLOAT, input_shape)], outs, inits), exact
 
 
