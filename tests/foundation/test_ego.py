@@ -1,0 +1,107 @@
+"""Ego-side geometry, matchers and aligners."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mmatch.ego.base import MatchContext, descriptor_distance, heading_yaws
+from mmatch.ego.registry import get_aligner, get_matcher
+from mmatch.ego.rigid import icp2d, kabsch2d, se2_to_matrix
+from mmatch.errors import ConfigError
+from mmatch.label_frames import shared_from_labels
+from mmatch.metrics import pair_counts, rre_deg, rte_m
+from mmatch.scene_io import load_scene
+from mmatch.shared import SharedFrame
+
+
+def _rot(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+
+def test_kabsch_recovers_an_exact_transform():
+    src = np.random.default_rng(0).uniform(-20, 20, (6, 2))
+    R, t = kabsch2d(src, src @ _rot(37).T + [4.0, -2.0])
+    assert np.allclose(R, _rot(37)) and np.allclose(t, [4.0, -2.0])
+
+
+def test_icp_converges_from_a_nearby_start_and_anchors_stop_sliding():
+    rng = np.random.default_rng(1)
+    wall = np.column_stack([np.full(200, 5.0), np.linspace(0, 80, 200)])   # one straight wall
+    pole = np.array([[-3.0, 20.0], [-3.0, 45.0]])
+    dst = np.vstack([wall, pole])
+    src = (dst - [0.5, 0.0]) @ _rot(-3).T + rng.normal(0, 0.02, dst.shape)
+    R, t, inl = icp2d(src, dst, np.eye(2), np.zeros(2))
+    assert abs(np.degrees(np.arctan2(R[1, 0], R[0, 0])) - 3) < 0.5
+    assert inl > 0.7
+    # along a featureless wall a wrong along-wall start stays wrong without anchors...
+    R2, t2, _ = icp2d(wall @ _rot(0).T, wall, np.eye(2), np.array([0.0, 6.0]))
+    assert abs(t2[1] - 6.0) < 1.0
+    # ...and anchors (a matched vehicle) pull it to the truth
+    R3, t3, _ = icp2d(wall, wall, np.eye(2), np.array([0.0, 6.0]),
+                      anchors=(np.array([[0.0, 30.0]]), np.array([[0.0, 30.0]])), anchor_weight=200)
+    assert abs(t3[1]) < 0.5
+
+
+def test_metrics_of_known_errors():
+    gt = se2_to_matrix(_rot(10), np.array([20.0, 5.0]), 0.3)
+    est = se2_to_matrix(_rot(13), np.array([21.0, 5.0]), 0.3)
+    assert rre_deg(gt, est) == pytest.approx(3.0, abs=1e-6)
+    assert rte_m(gt, est) == pytest.approx(1.0)
+    assert pair_counts(np.array([[0, 1], [2, 3]]), np.array([[0, 1], [4, 5], [6, 7]])) == (1, 2, 3)
+
+
+def test_descriptor_distance_is_zero_for_equal_and_one_for_disjoint():
+    a = np.zeros((1, 32), np.float32)
+    a[0, [0, 16, 24]] = 1
+    b = np.zeros((1, 32), np.float32)
+    b[0, [5, 20, 30]] = 1
+    assert descriptor_distance(a, a)[0, 0] == pytest.approx(0, abs=1e-6)
+    assert descriptor_distance(a, b)[0, 0] == pytest.approx(1)
+
+
+def test_heading_yaws_need_moving_radars():
+    own = SharedFrame("e", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 15.0]))
+    other = SharedFrame("c", 0, 0.0, 0.5, ego_velocity=np.array([15.0, 0.0]))
+    yaws = heading_yaws(own, other)
+    assert np.degrees(yaws[0]) == pytest.approx(90)
+    other.ego_velocity = np.array([0.5, 0.5])
+    assert heading_yaws(own, other) is None
+
+
+def test_unknown_names_are_refused():
+    with pytest.raises(ConfigError, match="unknown matcher"):
+        get_matcher("nope")
+    with pytest.raises(ConfigError, match="centroid-icp"):
+        get_aligner("nope")
+
+
+def test_matchers_and_aligners_on_label_frames(hard_dir):
+    """Consensus finds most true pairs; oracle pairs + anchored ICP align most scenes."""
+    oracle, consensus = get_matcher("oracle"), get_matcher("consensus")
+    aligner = get_aligner("anchored-icp")
+    tp = pred = gt = ok = 0
+    files = sorted(hard_dir.glob("*.npz"))
+    for f in files:
+        s = load_scene(f)
+        own, other = shared_from_labels(s.ego, "ego"), shared_from_labels(s.cav, "cav")
+        m = consensus(own, other, MatchContext())
+        boxes = np.column_stack([own.vehicle_box_index[m.pairs[:, 0]], other.vehicle_box_index[m.pairs[:, 1]]])
+        a, b, c = pair_counts(boxes, s.gt_pairs)
+        tp, pred, gt = tp + a, pred + b, gt + c
+        o = oracle(own, other, MatchContext(s.gt_pairs))
+        assert len(o.pairs) == len(s.gt_pairs)
+        res = aligner(own, other, o)
+        if res.T is not None and rre_deg(s.gt_T_ego_cav, res.T) < 5 and rte_m(s.gt_T_ego_cav, res.T) < 2:
+            ok += 1
+    assert tp / pred > 0.7 and tp / gt > 0.6, (tp, pred, gt)
+    assert ok / len(files) > 0.45
+
+
+def test_too_few_pairs_gives_a_reason():
+    own = SharedFrame("e", 0, 0.0, 0.5, vehicle_boxes=np.zeros((1, 6), np.float32),
+                      vehicle_box_index=np.zeros(1, np.int32), vehicle_centers=np.ones((1, 2), np.float32),
+                      vehicle_features=np.zeros((1, 32), np.float32))
+    res = get_aligner("centroid-icp")(own, own, get_matcher("oracle")(own, own, MatchContext(np.array([[0, 0]]))))
+    assert res.T is None and "needs 2" in res.reason
