@@ -42,7 +42,7 @@ def make_camera() -> CameraModel:
     K = np.array([[800.0, 0, 640], [0, 800.0, 360], [0, 0, 1]])
     T = np.eye(4)
     T[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]   # radar (x r, y f, z up) -> camera (x r, y down, z f)
-    T[:3, 3] = [0.0, -0.3, 0.0]                      # camera 0.3 m above the radar
+    T[:3, 3] = [0.0, 0.3, 0.0]                       # camera 0.3 m above the radar (y_cam down)
     return CameraModel(K=K, image_size=(1280, 720), T_cam_radar=T)
 
 
