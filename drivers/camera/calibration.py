@@ -81,13 +81,26 @@ class Calibration:
 
     def undistort_boxes(self, boxes: np.ndarray) -> np.ndarray:
         """Boxes (M, >=4) u1, v1, u2, v2 in the distorted image -> the axis-aligned box around
-        their four undistorted corners (other columns copied). float32 (M, same columns)."""
+        their undistorted outline (other columns copied). float32 (M, same columns).
+
+        The straight edges of a box in the distorted image are curves after undistortion; the
+        outline is sampled at 5 points per edge plus where the edges cross the principal
+        axes (where a radially distorted edge bulges most)."""
         b = np.asarray(boxes, np.float32)
         out = b.copy()
         if len(b) == 0 or not np.any(self.dist):
             return out
-        corners = np.stack([b[:, [0, 1]], b[:, [2, 1]], b[:, [0, 3]], b[:, [2, 3]]], axis=1)  # (M, 4, 2)
-        und = self.undistort_points(corners.reshape(-1, 2)).reshape(-1, 4, 2)
+        u1, v1, u2, v2 = (b[:, i].astype(np.float64)[:, None] for i in range(4))
+        t = np.linspace(0.0, 1.0, 5)[None, :]
+        cu = np.clip(self.K[0, 2], u1, u2)                  # principal-axis crossings, clipped to the box
+        cv = np.clip(self.K[1, 2], v1, v2)
+        us = np.concatenate([u1 + (u2 - u1) * t, cu], axis=1)    # (M, 6) along horizontal edges
+        vs = np.concatenate([v1 + (v2 - v1) * t, cv], axis=1)    # (M, 6) along vertical edges
+        n = us.shape[1]
+        pts = np.concatenate([np.stack([us, np.repeat(v1, n, 1)], -1), np.stack([us, np.repeat(v2, n, 1)], -1),
+                              np.stack([np.repeat(u1, n, 1), vs], -1), np.stack([np.repeat(u2, n, 1), vs], -1)],
+                             axis=1)                              # (M, 4n, 2)
+        und = self.undistort_points(pts.reshape(-1, 2)).reshape(len(b), -1, 2)
         out[:, 0:2] = und.min(axis=1)
         out[:, 2:4] = und.max(axis=1)
         return out
