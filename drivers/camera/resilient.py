@@ -166,7 +166,7 @@ class ResilientCamera:
                 self.last_error = f"{type(exc).__name__}: {exc}"
                 self.state = "reconnecting"
                 kind = "failed" if isinstance(exc, MMatchError) else "failed unexpectedly"
-                self._report("%s %s (%s); retrying in %.1f s", self.name, kind, self.last_error, delay)
+                self._report("%s %s (%s); retrying in %.2f s", self.name, kind, self.last_error, delay)
             finally:
                 if source is not None:
                     try:
