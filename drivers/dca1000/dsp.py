@@ -1,6 +1,6 @@
 """Radar signal processing of a raw ADC cube into a point cloud (vectorised numpy/scipy).
 
-Chain (per frame): range FFT with window -> optional static clutter removal (subtract the mean
+Chain (per frame): range FFT with window -> optional static clutter removal (subtract the window-weighted mean
 over chirps) -> Doppler FFT with window -> non-coherent sum over virtual channels -> 2D CFAR
 (CA or OS) with peak grouping (local maximum in 3 x 3 cells, Doppler cyclic) -> per detection:
 TDM-MIMO Doppler phase compensation, channel phase calibration, azimuth FFT over the
@@ -41,6 +41,7 @@ class DspConfig:
     angle_fft: azimuth FFT size; max_points: keep the strongest points of a frame.
     range_bias_m, channel_phase: calibration of compRangeBiasAndRxChanPhase (channel_phase:
         complex factor per virtual channel in cube order, multiplied in).
+    tdm_compensation: remove the Doppler phase of later TX slots (off only to show why it matters).
     """
 
     window: str = "hann"
@@ -58,6 +59,7 @@ class DspConfig:
     max_points: int = 1024
     range_bias_m: float = 0.0
     channel_phase: tuple[complex, ...] | None = None
+    tdm_compensation: bool = True
 
     def __post_init__(self) -> None:
         if self.cfar not in ("ca", "os"):
@@ -199,7 +201,11 @@ class RadarDsp:
         x = cube * self.win_r
         x = sfft.fft(x, n=self.NR, axis=2, workers=1, overwrite_x=True)
         if self.config.clutter_removal:
-            x -= x.mean(axis=0, keepdims=True)
+            # subtract the Doppler-window-weighted mean over chirps: it zeroes Doppler bin 0
+            # exactly, and a moving target's (Hann-sidelobe-small) share of it is negligible,
+            # whereas the plain mean leaves a -30 dB ghost of every moving target at Doppler 0
+            m = np.tensordot(self.win_d / self.win_d.sum(), x, axes=(0, 0))
+            x -= m[None]
         x *= self.win_d[:, None, None]
         return sfft.fft(x, axis=0, workers=1, overwrite_x=True)
 
@@ -224,8 +230,11 @@ class RadarDsp:
         D = self.L
         noise = self.ca_noise(power)
         cand = power > self.thr * noise
-        if cfg.cfar == "os":  # CA is only a pre-filter here (10 dB slack), OS decides
-            cand = power > (self.thr / 10.0) * noise
+        if cfg.cfar == "os":
+            # pre-filter 10 dB below the threshold over the median of each range bin (not the CA
+            # mean: a strong neighbour inflates that, which is what OS is for); OS then decides
+            floor = np.median(power, axis=0)
+            cand = power > (self.thr / 10.0) * floor[None, :]
         cand[:, : self.r_lo] = False
         cand[:, self.r_hi:] = False
         d, r = np.nonzero(cand)
@@ -271,7 +280,8 @@ class RadarDsp:
         ds = self.d_signed[d]
         y = spec[d, :, r]                                                     # (K, V)
         # TDM-MIMO: slot k fires k*Tc after slot 0; remove the Doppler phase it accumulated
-        y = y * np.exp(-2j * np.pi * np.outer(ds, self.slot) / (self.L * self.T)).astype(np.complex64)
+        if cfg.tdm_compensation:
+            y = y * np.exp(-2j * np.pi * np.outer(ds, self.slot) / (self.L * self.T)).astype(np.complex64)
         if self.cal is not None:
             y = y * self.cal
         a = y[:, self.az_idx] @ self.az_map                                   # (K, n_az)
