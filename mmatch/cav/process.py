@@ -12,8 +12,9 @@ Choices where the paper is silent:
   stationary points it claimed (or, with none, the box bearing at the box depth);
 - moving points claimed by no box (ghosts, clutter, vehicles the camera missed) and moving
   points outside a vehicle's main cluster are dropped; stationary ones join the background;
-- when the ego-motion fit gives no estimate, no point is moving: every box is treated as
-  parked and `ego_velocity` is NaN.
+- when the ego-motion fit gives no estimate (a frame with next to no stationary structure),
+  no point is known to move: every box keeps the points projecting into it near its depth
+  as vehicle points, all other points go to the background, and `ego_velocity` is NaN.
 """
 
 from __future__ import annotations
@@ -110,7 +111,9 @@ def process_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, ca
     proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
     sep = separate(points, moving, vb, camera, cfg.separation, proj)
     owner = sep.owner                                         # vehicle index or -1
-    parked = np.append(sep.claimed_moving == 0, True)         # (V + 1,); owner -1 -> last
+    # (V + 1,): owner -1 indexes the last entry. Without an ego-motion estimate nothing is
+    # known to move, so no box can be told parked: each keeps the points it claims.
+    parked = np.append(sep.claimed_moving == 0 if ego.ok else np.zeros(len(vb), bool), True)
     owned_by_parked = (owner >= 0) & parked[owner]
     candidate = (owner >= 0) & ~owned_by_parked
     t2 = time.perf_counter()

@@ -28,10 +28,13 @@ def observations():
 
 
 def test_egomotion_recovers_the_simulated_radar_velocity(observations):
-    errs, tp, fp, fn, false_stat, n_stat = [], 0, 0, 0, 0, 0
+    errs, tp, fp, fn, false_stat, n_stat, no_estimate = [], 0, 0, 0, 0, 0, 0
     for o, gt in observations:
         e = fit_egomotion(o.points)
-        assert e.ok, e.reason
+        if not e.ok:            # allowed only for frames with next to no stationary structure
+            assert np.sum(o.point_labels == -1) < 10, e.reason
+            no_estimate += 1
+            continue
         errs.append(np.linalg.norm(e.velocity - o.velocity))
         tp += np.sum(e.moving & gt)
         fp += np.sum(e.moving & ~gt)
@@ -40,7 +43,8 @@ def test_egomotion_recovers_the_simulated_radar_velocity(observations):
         false_stat += np.sum(e.moving & stat)
         n_stat += stat.sum()
     errs = np.array(errs)
-    print(f"\nsimulator, {len(errs)} frames: |v err| median {np.median(errs):.3f} m/s, p90 "
+    assert no_estimate <= 0.1 * len(observations)
+    print(f"\nsimulator, {len(observations)} frames ({no_estimate} without an estimate): |v err| median {np.median(errs):.3f} m/s, p90 "
           f"{np.percentile(errs, 90):.3f}, max {errs.max():.3f}; ego-motion stage moving recall "
           f"{tp / (tp + fn):.3f}, precision {tp / (tp + fp):.3f} (ghosts and clutter move too); "
           f"stationary structure called moving {false_stat / n_stat:.3f}")

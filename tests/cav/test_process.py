@@ -135,3 +135,13 @@ def test_wrong_shapes_raise_cav_input_error(points, boxes, features):
     f = make_frame(0)
     with pytest.raises(CavInputError):
         process_view(points, boxes, features, f.camera, 0.8, 1.0)
+
+
+def test_without_an_ego_motion_estimate_boxes_keep_their_points():
+    f = make_frame(4, n_moving=3, n_parked=0, clutter=0, ghosts=False)
+    k = next(int(i) for i in f.box_ids if i >= 0 and np.sum(f.labels == i) >= 3)
+    pts = f.points[f.labels == k]                          # only one vehicle's points: no background
+    frame, _ = process_view(pts, f.boxes, f.features, f.camera, 0.8, 1.0)
+    assert np.all(np.isnan(frame.ego_velocity))
+    v = int(np.flatnonzero(f.box_ids[frame.vehicle_box_index] == k)[0])
+    assert np.sum(frame.vehicle_index == v) >= 0.5 * len(pts)
