@@ -148,8 +148,12 @@ class FrameAssembler:
                 return self._release(False)
         F = self.frame_bytes
         k = byte_count // F
-        if self._next is None or (k < self._next and not self._emitted):
-            self._next = k  # nothing emitted yet: a reordered packet may still open an earlier frame
+        if self._next is None:
+            # the first packet may itself be a reordered one: earlier frames within the reorder
+            # window stay open (frames that then get no byte at all are counted as lost)
+            self._next = max(0, byte_count - self.reorder_bytes) // F
+        elif k < self._next and not self._emitted:
+            self._next = k
         elif k < self._next:
             if (end - 1) // F < self._next:
                 st.late += 1

@@ -1,0 +1,66 @@
+"""`mmatch dsp` on a synthesised capture, its errors, and the bench suite smoke run."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.dca1000.bench import AWR2243_BENCH_CFG
+from drivers.dca1000.layout import FrameGeometry
+from drivers.dca1000.synth import Target, synth_raw_frames
+from drivers.ti.cfg import parse_cfg
+from edge.cli import main
+
+CFG_PATH = Path(__file__).parent / "awr2243_3tx.cfg"
+
+
+@pytest.fixture(autouse=True)
+def _quiet_cfg_warnings():
+    logging.getLogger("drivers.ti.cfg").setLevel(logging.ERROR)
+
+
+def test_dsp_command_writes_points_per_frame(tmp_path, radar_cfg, capsys):
+    geom = FrameGeometry.from_chirp(radar_cfg.chirp)
+    targets = [Target(18.0, 5.0, 25.0, 0.0), Target(40.0, -8.0, -15.0, 0.0)]
+    cap = tmp_path / "adc_data_Raw_0.bin"
+    cap.write_bytes(synth_raw_frames(radar_cfg.chirp, geom, targets, 3, seed=4))
+    out = tmp_path / "points.json"
+    assert main(["dsp", "--cfg", str(CFG_PATH), "--adc", str(cap), "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert set(doc) == {"frames", "points_per_frame", "points"}
+    assert doc["frames"] == 3 and doc["points_per_frame"] == [2, 2, 2]
+    for frame in doc["points"]:
+        pts = np.asarray(frame)
+        assert pts.shape == (2, 5)
+        right = pts[np.argmax(pts[:, 0])]
+        assert right[0] > 0 and right[3] > 0          # the receding target on the right
+        assert abs(np.linalg.norm(right[:3]) - 18.0) < 1.0
+    assert "3 frames" in capsys.readouterr().out
+
+
+def test_dsp_command_refuses_a_capture_that_does_not_match(tmp_path, radar_cfg, capsys):
+    geom = FrameGeometry.from_chirp(radar_cfg.chirp)
+    cap = tmp_path / "bad.bin"
+    cap.write_bytes(b"\x01" * (geom.frame_bytes + 5000))
+    assert main(["dsp", "--cfg", str(CFG_PATH), "--adc", str(cap)]) == 2
+    err = capsys.readouterr().err
+    assert "not a whole number" in err and "1 frames + 5000 bytes" in err
+
+
+def test_bench_cfg_is_the_shipped_test_cfg(radar_cfg):
+    assert parse_cfg(AWR2243_BENCH_CFG, "<bench>").chirp == radar_cfg.chirp
+
+
+def test_bench_quick_smoke():
+    from drivers.dca1000.bench import run
+
+    out = run(quick=True)
+    assert all(isinstance(v, (int, float)) for v in out.values())
+    assert out["dsp_frame_ms_median"] > 0 and out["dsp_points"] == out["dsp_targets"]
+    assert out["dsp_doppler_bins"] == 128 and out["dsp_virtual_channels"] == 12 and out["dsp_samples"] == 256
+    assert out["loopback_frames"] == out["loopback_frames_sent"] == out["loopback_frames_exact"]
+    assert out["loopback_mb_per_s"] > 0
