@@ -10,18 +10,15 @@ from __future__ import annotations
 import numpy as np
 
 from mmatch.cav.config import BackgroundConfig
+from mmatch.cav.dbscan import dbscan_labels
 
 
 def denoise(xy: np.ndarray, config: BackgroundConfig | None = None) -> np.ndarray:
     """bool (N,): True for points in a DBSCAN cluster over (x, y) (not isolated)."""
-    from sklearn.cluster import DBSCAN
-
     cfg = config or BackgroundConfig()
     if len(xy) == 0:
         return np.zeros(0, bool)
-    # kd_tree explicitly: "auto" may pick brute force, 10-50x slower here on small inputs
-    db = DBSCAN(eps=cfg.eps_m, min_samples=cfg.min_samples, algorithm="kd_tree")
-    labels = db.fit_predict(np.asarray(xy, np.float64))
+    labels = dbscan_labels(xy, cfg.eps_m, cfg.min_samples)
     return labels >= 0
 
 

@@ -1,6 +1,6 @@
 """DBSCAN per vehicle over (x, y, scaled Doppler residual): keep each vehicle's main cluster.
 
-All vehicles go through one scikit-learn DBSCAN call: the vehicle index is appended as a
+All vehicles go through one DBSCAN call (`mmatch.cav.dbscan`): the vehicle index is appended as a
 coordinate scaled far beyond eps, so clusters never span two vehicles. The main cluster of
 a vehicle is the one with the most moving points (ties: the most points, then the lowest
 label); a vehicle without moving points keeps its largest cluster.
@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from mmatch.cav.config import ClusteringConfig
+from mmatch.cav.dbscan import dbscan_labels
 
 _SEPARATE = 1.0e6          # metres between two vehicles' slices of the feature space
 
@@ -23,16 +24,13 @@ def main_clusters(xy: np.ndarray, residual: np.ndarray, moving: np.ndarray, vehi
     prediction, m/s; moving: bool (K,); vehicle: int (K,) vehicle index >= 0.
     Returns bool (K,): True for the points of each vehicle's main cluster.
     """
-    from sklearn.cluster import DBSCAN
-
     cfg = config or ClusteringConfig()
     k = len(xy)
     if k == 0:
         return np.zeros(0, bool)
     feats = np.column_stack([xy[:, 0], xy[:, 1], cfg.velocity_scale_s * residual,
                              _SEPARATE * vehicle.astype(np.float64)])
-    # kd_tree explicitly: "auto" may pick brute force, 10-50x slower here on small inputs
-    labels = DBSCAN(eps=cfg.eps_m, min_samples=cfg.min_samples, algorithm="kd_tree").fit_predict(feats)
+    labels = dbscan_labels(feats, cfg.eps_m, cfg.min_samples)
     ok = labels >= 0
     if not ok.any():
         return ok
