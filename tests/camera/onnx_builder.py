@@ -138,3 +138,23 @@ def matmul_model(weight: np.ndarray, input_name: str = "x", output_name: str = "
     return model([node("MatMul", [input_name, "W"], [output_name])],
                  [value_info(input_name, FLOAT, ("n", w.shape[0]))], [value_info(output_name, FLOAT, ("n", w.shape[1]))],
                  [tensor("W", w)])
+
+
+def attr_ints(name: str, values: list[int]) -> bytes:
+    """AttributeProto name (1), ints (8, repeated), type (20) = INTS (7)."""
+    return _bytes(1, name) + b"".join(_int(8, v) for v in values) + _int(20, 7)
+
+
+def conv_detector_model(weight: np.ndarray, bias: np.ndarray, size: int = 64, stride: int = 8) -> bytes:
+    """A tiny real "detector": images (1, 3, size, size) -> Conv(k = stride = `stride`) ->
+    Reshape to (1, C, (size / stride)^2), i.e. a YOLOv8-style (1, 4 + nc, N) output computed
+    from the pixels (something a static quantizer can calibrate)."""
+    c = weight.shape[0]
+    n = (size // stride) ** 2
+    nodes = [node("Conv", ["images", "W", "B"], ["feat"], attrs=[attr_ints("kernel_shape", [stride, stride]),
+                                                                  attr_ints("strides", [stride, stride])]),
+             node("Reshape", ["feat", "shape"], ["output0"])]
+    inits = [tensor("W", np.asarray(weight, np.float32)), tensor("B", np.asarray(bias, np.float32)),
+             tensor("shape", np.array([1, c, n], np.int64))]
+    return model(nodes, [value_info("images", FLOAT, (1, 3, size, size))], [value_info("output0", FLOAT, (1, c, n))],
+                 inits)
