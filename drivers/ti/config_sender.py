@@ -16,7 +16,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from drivers.ti.cfg import RadarCfg
+from pathlib import Path
+
+from drivers.ti.cfg import RadarCfg, load_cfg
 from mmatch.errors import DeviceError, DeviceTimeout
 
 log = logging.getLogger(__name__)
@@ -53,15 +55,18 @@ def _classify(text: str, line: str, prompt: str) -> tuple[str, str]:
     return "wait", ""
 
 
-def send_cfg(port: Any, cfg: RadarCfg, *, timeout_s: float = 2.0, start_timeout_s: float = 6.0,
+def send_cfg(port: Any, cfg: RadarCfg | str | Path, *, timeout_s: float = 2.0, start_timeout_s: float = 6.0,
              prompt: str = PROMPT, baudrate: int = CLI_BAUD, prompt_grace_s: float = 0.2,
              on_reply: Callable[[CommandReply], None] | None = None) -> list[CommandReply]:
     """Send every command of `cfg` over the CLI port, line by line; return the replies.
 
     port: an open pyserial-like object (write, read, in_waiting, reset_input_buffer) or a
-    port name/URL opened here at `baudrate` and closed afterwards. timeout_s: seconds to wait
-    for each answer (`start_timeout_s` for sensorStart, which calibrates first).
+    port name/URL opened here at `baudrate` and closed afterwards. cfg: a parsed cfg or a
+    .cfg path (parsed and validated here, before the port is opened). timeout_s: seconds to
+    wait for each answer (`start_timeout_s` for sensorStart, which calibrates first).
     """
+    if not isinstance(cfg, RadarCfg):
+        cfg = load_cfg(cfg)
     if isinstance(port, str):
         import serial
 
