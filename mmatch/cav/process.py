@@ -10,8 +10,10 @@ Choices where the paper is silent:
   sight, whose Doppler looks stationary): its radar points go to the background, the
   vehicle keeps its box and descriptor, no points, and its centre is the centroid of the
   stationary points it claimed (or, with none, the box bearing at the box depth);
+- a box that claims moving points shares only its moving points (main DBSCAN cluster); the
+  stationary points it claimed join the background;
 - moving points claimed by no box (ghosts, clutter, vehicles the camera missed) and moving
-  points outside a vehicle's main cluster are dropped; stationary ones join the background;
+  points outside a vehicle's main cluster are dropped;
 - when the ego-motion fit gives no estimate (a frame with next to no stationary structure),
   no point is known to move: every box keeps the points projecting into it near its depth
   as vehicle points, all other points go to the background, and `ego_velocity` is NaN.
@@ -115,7 +117,10 @@ def process_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, ca
     # known to move, so no box can be told parked: each keeps the points it claims.
     parked = np.append(sep.claimed_moving == 0 if ego.ok else np.zeros(len(vb), bool), True)
     owned_by_parked = (owner >= 0) & parked[owner]
-    candidate = (owner >= 0) & ~owned_by_parked
+    # a moving vehicle shares only its moving points: stationary points claimed with them are
+    # nearly always guardrail, facade or parked-car returns at the same depth (on 120 simulated
+    # frames keeping them cost 4-7 points of precision and gained < 0.5 point of recall)
+    candidate = (owner >= 0) & ~owned_by_parked & (moving | (not ego.ok))
     t2 = time.perf_counter()
     timings["separation"] = (t2 - t1) * 1e3
 
