@@ -243,6 +243,8 @@ def _decode_as(buf: bytes | bytearray, offset: int, end: int, final: bool, fmt: 
     points, why = _points(hdr, major, tlvs, chirp)
     if why:
         return _reject("point_count", why)
+    if not np.isfinite(points).all():
+        return _reject("bad_tlv_payload", "point values are not finite (NaN/inf on the wire)")
     pkt = TiPacket(header=hdr, tlvs=tuple(tlvs), points=points, offset=offset, length=total)
     return DecodeResult(OK, packet=pkt, length=total)
 
@@ -320,7 +322,7 @@ def spherical_to_points(t: CompressedPoints) -> np.ndarray:
     out[:, 2] = r * np.sin(el)
     out[:, 3] = p["doppler"] * dop_u
     ratio = p["snr"] * snr_u
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
         out[:, 4] = np.maximum(np.float32(10.0) * np.log10(ratio), np.float32(SNR_FLOOR_DB))
     return out
 
