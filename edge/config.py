@@ -117,8 +117,8 @@ class EgoSection:
     link_timeout_s: float = _opt(0.5, lo=0.0, lo_open=True, hi=60.0,
                                  doc="a CAV with no frame for this long is flagged lost")
     history: int = _opt(16, lo=1, hi=1024, doc="CAV frames kept per sender (keep-newest ring)")
-    wait_s: float = _opt(0.02, lo=0.0, hi=1.0,
-                         doc="live only: wait this long at most for a CAV frame closer in time")
+    wait_s: float = _opt(0.035, lo=0.0, hi=1.0,
+                         doc="live only: wait for a CAV frame closer in time until own capture + this, s")
 
 
 @dataclass(frozen=True)

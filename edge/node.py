@@ -180,9 +180,10 @@ class Node:
         tol = self.cfg.ego.pair_tolerance_s
         with self._cond:
             if self.wait_s > 0:
-                deadline = time.monotonic() + self.wait_s
+                # deadline on the shared clock: own capture + wait_s keeps the latency budget
+                deadline = frame.stamp + self.wait_s
                 while self._wanted(frame.stamp):
-                    left = deadline - time.monotonic()
+                    left = deadline - self.clock()
                     if left <= 0:
                         break
                     self._cond.wait(left)

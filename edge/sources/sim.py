@@ -2,8 +2,8 @@
 
 Frames come at `sim.rate_hz` on the grid k / rate + `sim.phase_s` of the shared clock
 (time.time()); every process that uses the same seed and mode sees the same world, each
-from its own vehicle (`sim.view`). A frame is rendered ahead of its capture time and
-delivered at it, as a sensor delivers what it captured. The camera of the same vehicle
+from its own vehicle (`sim.view`). A frame is rendered just ahead of its capture time
+and delivered at it, as a sensor delivers what it captured. The camera of the same vehicle
 gets the detections of the same observation.
 """
 
@@ -41,6 +41,7 @@ class SimRadar(RadarSource):
         self._next: float | None = None
         self._frame_number = 0
         self.skipped = 0
+        self._render_s = 0.015  # running estimate of one observation's render time, s
         self.camera_feed: KeepNewest[Detections] | None = None
         self._closed = False
 
@@ -63,10 +64,16 @@ class SimRadar(RadarSource):
                 self.skipped += 1
             self._next = self._grid_after(now)
         t = self._next
-        if t - now > timeout:
+        # render just in time (not while the loop is still busy with the previous frame)
+        lead = 1.5 * self._render_s + 0.003
+        if t - lead - now > timeout:
             self._sleep(timeout)
             return None
+        if t - lead - now > 0:
+            self._sleep(t - lead - now)
+        r0 = time.perf_counter()
         obs = self.scenario.observe(self.view, t + self.cfg.sim.time_offset_s)
+        self._render_s = 0.8 * self._render_s + 0.2 * (time.perf_counter() - r0)
         wait = t - self._clock()
         if wait > 0:
             self._sleep(wait)

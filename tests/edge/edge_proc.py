@@ -1,0 +1,96 @@
+"""Helpers to run `mmatch` sub-commands as real processes in tests."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def write_vehicle_cfg(path: Path, *, vid: str, role: str, listen: list[str], connect: list[str],
+                      log_dir: Path | None, phase: float = 0.0, cavs: list[str] | None = None,
+                      seed: int = 1, mode: str = "easy", extra: str = "") -> Path:
+    def arr(xs: list[str]) -> str:
+        return "[" + ", ".join(f'"{x}"' for x in xs) + "]"
+
+    text = f"""
+[vehicle]
+id = "{vid}"
+role = "{role}"
+[radar]
+source = "sim"
+[camera]
+source = "sim"
+[sim]
+seed = {seed}
+mode = "{mode}"
+rate_hz = 20.0
+phase_s = {phase}
+[zenoh]
+mode = "peer"
+listen = {arr(listen)}
+connect = {arr(connect)}
+[ego]
+cavs = {arr(cavs or [])}
+[loop]
+status_interval_s = 1.0
+[log]
+dir = "{log_dir or ''}"
+chunk_kb = 64
+flush_s = 0.2
+raw_floor_mb = 0
+floor_mb = 0
+{extra}
+"""
+    path.write_text(text)
+    return path
+
+
+def _service_priority() -> None:
+    """The priority systemd/mmatch-edge.service gives the service (Nice=-5), when allowed."""
+    try:
+        os.nice(-5)
+    except OSError:
+        pass
+
+
+def start(args: list[str], log_file: Path, env: dict | None = None, nice: bool = True) -> subprocess.Popen:
+    e = dict(os.environ)
+    e.update(env or {})
+    out = open(log_file, "ab")
+    try:
+        return subprocess.Popen([sys.executable, "-m", "edge.cli", "-v", *args], cwd=REPO, env=e,
+                                stdout=out, stderr=subprocess.STDOUT,
+                                preexec_fn=_service_priority if nice else None)
+    finally:
+        out.close()
+
+
+def mmatch(args: list[str], timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "edge.cli", *args], cwd=REPO, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout: float = 10.0) -> int:
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            return proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            return proc.wait(5)
+    return proc.returncode
+
+
+def wait_for(cond, timeout: float, step: float = 0.02) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(step)
+    return False
