@@ -181,6 +181,56 @@ class FrameAssembler:
             src += take
         return self._release(False)
 
+    def add_batch(self, seq: np.ndarray, byte_count: np.ndarray, length: np.ndarray, payload: np.ndarray,
+                  slot_bytes: int) -> list[AdcFrame]:
+        """Feed n packets at once: payload of packet i is payload[i*slot_bytes:][:length[i]].
+
+        A run of full-size, in-order packets that continues the stream is written as one
+        segment (vectorised checks); anything else goes packet by packet through `add`.
+        """
+        n = len(seq)
+        if n == 0:
+            return []
+        P = self.packet_bytes
+        bc0 = int(byte_count[0])
+        fast = (P == slot_bytes and self._expect is not None and bc0 == self._expect and bc0 >= self._high
+                and (self.end_byte is None or bc0 + n * P <= self.end_byte)
+                and bool(np.all(length == P))
+                and bool(np.all(np.diff(byte_count) == P))
+                and (not self.check_seq or bool(np.all(byte_count == (seq - 1) * P)))
+                and bc0 + n * P - self._high <= self.max_jump_bytes)
+        if not fast:
+            out: list[AdcFrame] = []
+            mv = memoryview(payload)
+            for i, (s, b, ln) in enumerate(zip(seq.tolist(), byte_count.tolist(), length.tolist())):
+                out += self.add(s, b, mv[i * slot_bytes: i * slot_bytes + ln])
+            return out
+        st = self.stats
+        st.packets += n
+        st.payload_bytes += n * P
+        end = bc0 + n * P
+        self._expect = end
+        self._high = end
+        F = self.frame_bytes
+        mv = memoryview(payload)
+        pos = bc0
+        src = 0
+        while pos < end:
+            k = pos // F
+            off = pos - k * F
+            take = min(end - pos, F - off)
+            if k >= self._next:
+                p = self._pending.get(k)
+                if p is None:
+                    p = self._pending[k] = _Pending(bytearray(F))
+                p.buf[off:off + take] = mv[src:src + take]
+                p.got += take
+                first = pos - (pos - bc0) % P  # start of the packet holding byte `pos`
+                p.starts.update(range(first, pos + take, P))
+            pos += take
+            src += take
+        return self._release(False)
+
     def flush(self) -> list[AdcFrame]:
         """The stream has ended: let every pending frame go (see the class policy)."""
         return self._release(True)

@@ -41,7 +41,7 @@ lvdsStreamCfg -1 0 1 0
 sensorStart
 """
 
-LOOPBACK_RATE_MB_S = 160.0
+LOOPBACK_RATE_MB_S = 200.0
 
 
 def _free_udp_port() -> int:
