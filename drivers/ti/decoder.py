@@ -67,6 +67,8 @@ REASONS: tuple[str, ...] = (
     "bad_tlv_payload",      # a known TLV whose payload size/content is inconsistent
     "padding",              # >= 32 bytes after the last TLV, or not a 32-byte multiple
     "point_count",          # TLV 1 / TLV 7 disagree with numDetectedObj
+    "no_magic",             # decode_frame called where no magic word starts
+    "internal_error",       # the decoder itself failed (a bug; logged with its traceback)
 )
 
 _TLV_HDR = struct.Struct("<2I")
@@ -133,7 +135,7 @@ def decode_frame(buf: bytes | bytearray, offset: int = 0, end: int | None = None
         end = len(buf)
     avail = end - offset
     if buf[offset:offset + 8] != MAGIC:
-        return _reject("bad_length", "no magic word at offset")  # caller error; never from the reader
+        return _reject("no_magic", "no magic word at offset")  # caller error; never from the reader
     # Decide nothing before the largest header plus a magic word's length is in (or the
     # stream ended, or a later magic word shows up): the verdict, and its reason, then do
     # not depend on how the bytes were chunked.

@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
-from drivers.ti.decoder import NEED_MORE, OK, TiPacket, decode_frame
+from drivers.ti.decoder import NEED_MORE, OK, REJECT, DecodeResult, TiPacket, decode_frame
 from drivers.ti.header import MAGIC, HeaderFormat
 from drivers.ti.tlv import RawTlv
 from mmatch.errors import DecodeError
@@ -48,7 +48,7 @@ class ReaderStats:
     rejections: list = field(default_factory=list)  # (offset, reason), the first `keep` ones
     tlv_types: Counter = field(default_factory=Counter)
     unknown_tlvs: int = 0
-    restarts: int = 0
+    restarts: int = 0  # frame number went back (or repeated): sensor restart
     frame_gaps: int = 0  # frames missing between consecutive accepted frame numbers
     formats: Counter = field(default_factory=Counter)
 
@@ -175,7 +175,11 @@ class TlvReader:
             if i > pos:
                 st.bytes_skipped += i - pos
                 pos = i
-            res = decode_frame(buf, i, final=final, prefer=self._fmt, chirp=self.chirp)
+            try:
+                res = decode_frame(buf, i, final=final, prefer=self._fmt, chirp=self.chirp)
+            except Exception as exc:  # a decoder bug must not stop a live radar
+                log.exception("decoder failed on the frame at byte %d", self._base + i)
+                res = DecodeResult(REJECT, reason="internal_error", detail=repr(exc))
             if res.status == OK:
                 pkt = res.packet
                 assert pkt is not None

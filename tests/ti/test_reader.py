@@ -117,3 +117,23 @@ def test_pure_garbage_never_raises():
 def test_bad_policy_name():
     with pytest.raises(ValueError):
         TlvReader(on_error="ignore")
+
+
+def test_decoder_bug_is_counted_not_raised(monkeypatch, caplog):
+    import drivers.ti.reader as reader_mod
+
+    calls = {"n": 0}
+    real = reader_mod.decode_frame
+
+    def flaky(buf, offset, **kw):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise IndexError("boom")
+        return real(buf, offset, **kw)
+
+    monkeypatch.setattr(reader_mod, "decode_frame", flaky)
+    data = b"".join(encode_frame(make_points(3), fn) for fn in (1, 2, 3))
+    with caplog.at_level(logging.ERROR, logger="drivers.ti.reader"):
+        packets, st = read_all(data)
+    assert [p.header.frame_number for p in packets] == [1, 3]
+    assert dict(st.rejected) == {"internal_error": 1} and "boom" in caplog.text
