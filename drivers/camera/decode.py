@@ -138,11 +138,12 @@ def decode_centernet(heatmap: np.ndarray, wh: np.ndarray, reg: np.ndarray | None
     if apply_sigmoid is None:
         apply_sigmoid = bool(hm.min() < 0.0 or hm.max() > 1.0)
     thr = float(np.log(score_threshold / (1 - score_threshold))) if apply_sigmoid else score_threshold
-    c, y, x = np.nonzero(hm > thr)
-    if c.size == 0:
+    flat = np.flatnonzero(hm > thr)                 # (much faster than np.nonzero on a 3-D array)
+    if flat.size == 0:
         return _empty(dep is not None)
-    # 3x3 local maximum test at the candidates only (same result as max-pool NMS on the map).
     nc, h, w = hm.shape
+    c, y, x = np.unravel_index(flat, hm.shape)
+    # 3x3 local maximum test at the candidates only (same result as max-pool NMS on the map).
     padded = np.pad(hm, ((0, 0), (1, 1), (1, 1)), constant_values=-np.inf)
     v = hm[c, y, x]
     is_peak = np.ones(c.size, bool)

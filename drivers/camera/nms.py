@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+_MATRIX_MAX = 512   # up to this many candidates NMS uses one (K, K) IoU matrix
+
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """IoU matrix (len(a), len(b)) of boxes x1, y1, x2, y2 (any unit; empty boxes give 0)."""
@@ -37,6 +39,20 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float = 0.45,
         span = float(np.abs(boxes[:, :4]).max()) * 2 + 1
         boxes = boxes[:, :4] + (np.asarray(classes, np.float64) * span)[:, None]
     order = np.argsort(-scores, kind="stable")
+    if len(order) <= _MATRIX_MAX:
+        # Small candidate sets (the usual case after the score threshold): one IoU matrix, then a
+        # cheap sequential pass over boolean rows.
+        over = box_iou(boxes[order], boxes[order]) > iou_threshold
+        alive = np.ones(len(order), bool)
+        keep_sorted: list[int] = []
+        for i in range(len(order)):
+            if not alive[i]:
+                continue
+            keep_sorted.append(i)
+            if len(keep_sorted) >= max_detections:
+                break
+            alive[i + 1:] &= ~over[i, i + 1:]
+        return order[np.asarray(keep_sorted, np.int64)]
     x1, y1, x2, y2 = boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3]
     area = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
     keep: list[int] = []

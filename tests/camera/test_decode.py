@@ -140,3 +140,19 @@ def test_nms_matches_bruteforce_on_random_boxes():
             assert any(iou[i, k] > 0.4 and scores[k] >= scores[i] for k in kept)
     sub = iou[np.ix_(keep, keep)]
     assert (sub[~np.eye(len(keep), dtype=bool)] <= 0.4).all()
+
+
+def test_nms_matrix_and_loop_paths_agree(monkeypatch):
+    import drivers.camera.nms as nms_mod
+
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(0, 200, (300, 2))
+    boxes = np.concatenate([xy, xy + rng.uniform(5, 40, (300, 2))], 1)
+    scores = rng.uniform(0, 1, 300)
+    classes = rng.integers(0, 3, 300)
+    a = nms(boxes, scores, 0.4, classes=classes, max_detections=1000)
+    monkeypatch.setattr(nms_mod, "_MATRIX_MAX", 0)
+    b = nms(boxes, scores, 0.4, classes=classes, max_detections=1000)
+    np.testing.assert_array_equal(a, b)
+    full = nms(boxes, scores, 0.4, max_detections=1000)
+    np.testing.assert_array_equal(nms(boxes, scores, 0.4, max_detections=7), full[:7])
