@@ -5,7 +5,8 @@ magic word at `offset`; header complete; sane totalPacketLen; the packet fits in
 (otherwise: wait for more bytes, unless the stream is final or a later magic word inside the
 declared packet proves it truncated); no other magic word inside [offset+8, offset+len);
 for the 48-byte format the header checksum; all numTLVs TLV headers and payloads inside the
-packet; each known TLV payload well-formed; padding after the last TLV < 32 bytes with the
+packet; each point TLV well-formed (other known TLVs of an unexpected size are kept raw and
+listed in `TiPacket.malformed_tlvs`, costing only themselves); padding after the last TLV < 32 bytes with the
 packet a multiple of 32 bytes (36/40-byte formats, SDK >= 2) or none (48-byte format);
 for SDK >= 3 TLV 1 holds numDetectedObj points (or length 0 when numDetectedObj is 0, the
 SDK 3.3 quirk) and TLV 7, when present, one entry per point.
@@ -64,7 +65,8 @@ REASONS: tuple[str, ...] = (
     "header_checksum",      # 48-byte people-counting header checksum fails
     "tlv_out_of_bounds",    # a TLV header or payload runs past the packet
     "bad_tlv_length",       # a TLV length that cannot be (48-B format length < 8)
-    "bad_tlv_payload",      # a known TLV whose payload size/content is inconsistent
+    "bad_tlv_payload",      # a point TLV (1, 7, 301, 1020; 6 in the 48-B format) that does not parse,
+                            # or non-finite point values
     "padding",              # >= 32 bytes after the last TLV, or not a 32-byte multiple
     "point_count",          # TLV 1 / TLV 7 disagree with numDetectedObj
     "no_magic",             # decode_frame called where no magic word starts
@@ -72,6 +74,9 @@ REASONS: tuple[str, ...] = (
 )
 
 _TLV_HDR = struct.Struct("<2I")
+# TLVs that carry the points: a malformed one rejects the frame (others are kept raw)
+_POINT_TLVS = frozenset({1, 7, 301, 1020})
+_PC3D_POINT_TLVS = frozenset({6})
 _HEAD_REGION = 48 + len(MAGIC) - 1  # largest header + where a magic word starting in it ends
 _EMPTY5 = np.zeros((0, 5), np.float32)
 
@@ -86,6 +91,7 @@ class TiPacket:
     offset: int
     length: int
     host_time: float = 0.0
+    malformed_tlvs: tuple[int, ...] = ()  # types of known TLVs whose payload did not parse (kept raw)
 
     def tlv(self, tlv_type: int) -> TlvMessage | None:
         """The first TLV of a type, or None."""
@@ -207,6 +213,7 @@ def _decode_as(buf: bytes | bytearray, offset: int, end: int, final: bool, fmt: 
     tlv_incl_header = fmt is HeaderFormat.H48
     pos = offset + hsize
     tlvs: list[TlvMessage] = []
+    malformed: list[int] = []
     for k in range(hdr.num_tlvs):
         if pos + 8 > pkt_end:
             return _reject("tlv_out_of_bounds", f"TLV {k + 1}/{hdr.num_tlvs} header past the packet end")
@@ -231,7 +238,12 @@ def _decode_as(buf: bytes | bytearray, offset: int, end: int, final: bool, fmt: 
                 cls = registry.get(ttype)
                 msg = cls.from_bytes(payload) if cls is not None else RawTlv(ttype, payload)
         except DecodeError as exc:
-            return _reject("bad_tlv_payload", str(exc))
+            if ttype in (_PC3D_POINT_TLVS if fmt is HeaderFormat.H48 else _POINT_TLVS):
+                return _reject("bad_tlv_payload", str(exc))
+            # a side TLV (profile, heat map, stats, tracks) of an unexpected size costs only
+            # itself: kept raw and counted, the frame's points stand
+            msg = RawTlv(ttype, payload)
+            malformed.append(ttype)
         tlvs.append(msg)
         pos = stop
 
@@ -247,7 +259,8 @@ def _decode_as(buf: bytes | bytearray, offset: int, end: int, final: bool, fmt: 
         return _reject("point_count", why)
     if not np.isfinite(points).all():
         return _reject("bad_tlv_payload", "point values are not finite (NaN/inf on the wire)")
-    pkt = TiPacket(header=hdr, tlvs=tuple(tlvs), points=points, offset=offset, length=total)
+    pkt = TiPacket(header=hdr, tlvs=tuple(tlvs), points=points, offset=offset, length=total,
+                   malformed_tlvs=tuple(malformed))
     return DecodeResult(OK, packet=pkt, length=total)
 
 

@@ -48,6 +48,7 @@ class ReaderStats:
     rejections: list = field(default_factory=list)  # (offset, reason), the first `keep` ones
     tlv_types: Counter = field(default_factory=Counter)
     unknown_tlvs: int = 0
+    malformed_tlvs: int = 0  # known side TLVs of an unexpected size, kept raw
     restarts: int = 0  # frame number went back (or repeated): sensor restart
     frame_gaps: int = 0  # frames missing between consecutive accepted frame numbers
     formats: Counter = field(default_factory=Counter)
@@ -60,7 +61,8 @@ class ReaderStats:
         return {"frames": self.frames, "bytes_in": self.bytes_in,
                 "bytes_skipped": self.bytes_skipped, "rejected": dict(self.rejected),
                 "tlv_types": {str(k): v for k, v in sorted(self.tlv_types.items())},
-                "unknown_tlvs": self.unknown_tlvs, "restarts": self.restarts,
+                "unknown_tlvs": self.unknown_tlvs, "malformed_tlvs": self.malformed_tlvs,
+                "restarts": self.restarts,
                 "frame_gaps": self.frame_gaps, "formats": dict(self.formats)}
 
 
@@ -220,6 +222,9 @@ class TlvReader:
             st.tlv_types[int(t.type)] += 1
             if isinstance(t, RawTlv):
                 st.unknown_tlvs += 1
+        if pkt.malformed_tlvs:
+            st.malformed_tlvs += len(pkt.malformed_tlvs)
+            st.unknown_tlvs -= len(pkt.malformed_tlvs)
         fn = hdr.frame_number
         if self._last_fn is not None:
             if fn <= self._last_fn:

@@ -70,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
           + (" (" + ", ".join(f"{k} {v}" for k, v in sorted(st.rejected.items())) + ")"
              if st.rejected else ""))
     print(f"  sensor restarts: {st.restarts}, missing frame numbers: {st.frame_gaps}")
-    print(f"  TLV types: {summary['tlv_types'] or '-'} (unknown kept raw: {st.unknown_tlvs})")
+    print(f"  TLV types: {summary['tlv_types'] or '-'} (kept raw: {st.unknown_tlvs} unknown, "
+          f"{st.malformed_tlvs} of an unexpected size)")
     if summary["first_point"]:
         fp = summary["first_point"]
         print("  first point: " + ", ".join(f"{k} {v:.3f}" for k, v in fp.items()))

@@ -137,3 +137,19 @@ def test_decoder_bug_is_counted_not_raised(monkeypatch, caplog):
         packets, st = read_all(data)
     assert [p.header.frame_number for p in packets] == [1, 3]
     assert dict(st.rejected) == {"internal_error": 1} and "boom" in caplog.text
+
+
+def test_malformed_side_tlv_costs_only_itself():
+    from drivers.ti.tlv import RawTlv, Stats
+
+    pts = make_points(4, seed=2)
+    odd_stats = RawTlv(6, bytes(20))       # STATS should be 24 B
+    odd_profile = RawTlv(2, bytes(7))      # RANGE_PROFILE is u16 per bin
+    data = encode_frame(pts, 1, "sdk3", extra_tlvs=[odd_stats, odd_profile, Stats(1, 2, 3, 4, 5, 6)])
+    packets, st = read_all(data)
+    assert len(packets) == 1 and st.rejected_total == 0
+    pkt = packets[0]
+    assert pkt.malformed_tlvs == (6, 2)
+    np.testing.assert_array_equal(pkt.points[:, :4], pts[:, :4])
+    assert pkt.tlvs[2] == odd_stats and pkt.tlvs[4] == Stats(1, 2, 3, 4, 5, 6)
+    assert st.malformed_tlvs == 2 and st.unknown_tlvs == 0
