@@ -14,9 +14,8 @@ import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
-
 from pathlib import Path
+from typing import Any
 
 from drivers.ti.cfg import RadarCfg, load_cfg
 from mmatch.errors import DeviceError, DeviceTimeout

@@ -18,7 +18,7 @@ from drivers.ti.tlv import (
     NoiseProfile, Pc3dTargetIndex, Pc3dTargetList, PresenceIndication, RangeDopplerHeatMap,
     RangeProfile, RawTlv, SideInfo, Stats, TargetHeight, TargetIndex, TargetList,
     TemperatureStats)
-from drivers.ti.writer import encode_frame, encode_packet
+from drivers.ti.writer import encode_frame
 
 
 def make_points(n: int, seed: int = 0, max_range: float = 60.0) -> np.ndarray:

@@ -9,7 +9,6 @@ import time
 import tty
 from pathlib import Path
 
-import numpy as np
 import pytest
 import serial
 
@@ -17,7 +16,7 @@ from drivers.ti.cfg import load_cfg, parse_cfg
 from drivers.ti.config_sender import RadarConfigError, send_cfg
 from drivers.ti.reader import TlvReader
 from drivers.ti.sources import BytesSource, FileSource, SerialSource, open_source
-from drivers.ti.writer import encode_frame, encode_stream
+from drivers.ti.writer import encode_frame
 from mmatch.errors import ConfigError, DeviceError, DeviceTimeout
 
 from .helpers import make_points
