@@ -153,8 +153,10 @@ class VehicleLoop:
         self.process = process
         self.stop = threading.Event()
         lossless = radar.lossless
-        self.radar_q = _LosslessQueue(cfg.loop.queue_size, self.stop) if lossless else \
-            KeepNewest(cfg.loop.queue_size)
+        # recording only does little per frame: a deep queue keeps bursts (several frames in
+        # one serial read); live processing keeps the newest `queue_size` frames.
+        depth = cfg.loop.queue_size if process else max(cfg.loop.queue_size, 256)
+        self.radar_q = _LosslessQueue(depth, self.stop) if lossless else KeepNewest(depth)
         self.cam_hist = CameraHistory()
         self.drops: collections.Counter = collections.Counter()
         self.readers: list[SensorReader] = []
