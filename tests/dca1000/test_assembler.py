@@ -198,3 +198,44 @@ def test_property_loss_and_local_reorder(loss, seed, F):
     expected = _affected({i for i in loss if i < len(pk)}, F, len(data))
     lost_whole = {k for k in expected if all(i in loss for i in range(k * F // P, ((k + 1) * F - 1) // P + 1))}
     _check(frames, data, F, expected - lost_whole)
+
+
+@settings(max_examples=25, deadline=None)
+@given(loss=st.sets(st.integers(0, 68), max_size=5), batch=st.integers(1, 70), seed=st.integers(0, 100))
+def test_batches_match_packet_by_packet(loss, batch, seed):
+    """add_batch (contiguous fast path or fallback) == add, packet by packet."""
+    F = 4999
+    data = _stream(-(-69 * P // F), F, seed=seed)
+    pk = [p for i, p in enumerate(_packets(data)) if i not in loss]
+    a1 = FrameAssembler(F, num_frames=len(data) // F)
+    ref = _run(a1, pk)
+    a2 = FrameAssembler(F, num_frames=len(data) // F)
+    got = []
+    for j in range(0, len(pk), batch):
+        chunk = pk[j:j + batch]
+        buf = np.zeros(len(chunk) * P, dtype=np.uint8)
+        for i, (_, _, payload) in enumerate(chunk):
+            buf[i * P:i * P + len(payload)] = np.frombuffer(payload, dtype=np.uint8)
+        got += a2.add_batch(np.array([c[0] for c in chunk]), np.array([c[1] for c in chunk]),
+                            np.array([len(c[2]) for c in chunk]), buf, P)
+    got += a2.flush()
+    assert [(f.index, f.complete, f.missing_bytes) for f in got] == [(f.index, f.complete, f.missing_bytes) for f in ref]
+    assert all(np.array_equal(a.data, b.data) for a, b in zip(got, ref))
+    assert a1.stats.as_dict() == a2.stats.as_dict()
+
+
+def test_duplicate_after_fast_path_is_still_detected():
+    F = 5000
+    data = _stream(3, F)
+    pk = _packets(data)
+    asm = FrameAssembler(F, num_frames=3)
+    frames = asm.add(*pk[0])
+    buf = np.frombuffer(b"".join(p[2] for p in pk[1:6]), dtype=np.uint8)
+    frames += asm.add_batch(np.array([p[0] for p in pk[1:6]]), np.array([p[1] for p in pk[1:6]]),
+                            np.full(5, P), buf, P)
+    frames += asm.add(*pk[5])  # duplicate of a packet that came in the batch (frame 1 still open)
+    for p in pk[6:]:
+        frames += asm.add(*p)
+    frames += asm.flush()
+    assert asm.stats.duplicates == 1
+    _check(frames, data, F, set())
