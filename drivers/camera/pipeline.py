@@ -21,6 +21,9 @@ from mmatch.types import DESCRIPTOR_DIM, Detections
 
 log = logging.getLogger(__name__)
 
+#: Per-box pixel budget of the descriptor in the driver (see DetectionStage).
+DEFAULT_DESCRIPTOR_MAX_PIXELS = 4096
+
 
 @dataclass
 class CameraDetections(Detections):
@@ -71,11 +74,15 @@ class DetectionStage:
         OAK backend the device detects and `process_decoded` is called instead.
     calibration: intrinsics/distortion/image size; ground: the road plane for depth (None:
         from the calibration's [ground] table or its extrinsic and `radar_height`).
+    descriptor_max_pixels: boxes with more pixels are histogrammed on a regular grid (every
+        k-th row and column) of about this many pixels; None uses every pixel. The default 4096
+        halves the descriptor time for 20 boxes (bench) for a bin error of at most ~0.015
+        (painted vehicles; 0 on uniform boxes), below what two cameras' lighting differs by.
     """
 
     def __init__(self, detect, calibration: Calibration, ground: GroundPlane | None = None,
                  radar_height: float | None = None, depth: DepthConfig | None = None,
-                 descriptor_max_pixels: int | None = None) -> None:
+                 descriptor_max_pixels: int | None = DEFAULT_DESCRIPTOR_MAX_PIXELS) -> None:
         self._detect = detect
         self.calibration = calibration
         self.ground = ground or calibration.ground_plane(radar_height)
