@@ -49,7 +49,7 @@ class ReaderStats:
     tlv_types: Counter = field(default_factory=Counter)
     unknown_tlvs: int = 0
     malformed_tlvs: int = 0  # known side TLVs of an unexpected size, kept raw
-    restarts: int = 0  # frame number went back (or repeated): sensor restart
+    restarts: int = 0  # (frame number, sub-frame) went back or repeated: sensor restart
     frame_gaps: int = 0  # frames missing between consecutive accepted frame numbers
     formats: Counter = field(default_factory=Counter)
 
@@ -95,7 +95,7 @@ class TlvReader:
         self._pos = 0       # first byte of _buf not yet accounted for (accepted or skipped)
         self._search = 0    # where the next magic search starts
         self._fmt: HeaderFormat | None = None
-        self._last_fn: int | None = None
+        self._last_key: tuple[int, int] | None = None
         self._pending: deque[TiPacket] = deque()
         self._carry: list[TiPacket] = []  # accepted before a "raise" policy error
         self._finished = False
@@ -225,14 +225,16 @@ class TlvReader:
         if pkt.malformed_tlvs:
             st.malformed_tlvs += len(pkt.malformed_tlvs)
             st.unknown_tlvs -= len(pkt.malformed_tlvs)
-        fn = hdr.frame_number
-        if self._last_fn is not None:
-            if fn <= self._last_fn:
+        # advanced-frame sub-frames share a frame number: order by (frame, sub-frame)
+        key = (hdr.frame_number, hdr.sub_frame_number)
+        last = self._last_key
+        if last is not None:
+            if key <= last:
                 st.restarts += 1
-                log.info("frame number went back from %d to %d: sensor restart", self._last_fn, fn)
-            elif fn > self._last_fn + 1:
-                st.frame_gaps += fn - self._last_fn - 1
-        self._last_fn = fn
+                log.info("frame number went back from %d to %d: sensor restart", last[0], key[0])
+            elif key[0] > last[0] + 1:
+                st.frame_gaps += key[0] - last[0] - 1
+        self._last_key = key
 
     def _reject(self, offset: int, reason: str, detail: str) -> None:
         st = self.stats

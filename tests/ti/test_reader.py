@@ -153,3 +153,12 @@ def test_malformed_side_tlv_costs_only_itself():
     np.testing.assert_array_equal(pkt.points[:, :4], pts[:, :4])
     assert pkt.tlvs[2] == odd_stats and pkt.tlvs[4] == Stats(1, 2, 3, 4, 5, 6)
     assert st.malformed_tlvs == 2 and st.unknown_tlvs == 0
+
+
+def test_subframes_share_a_frame_number_without_restart():
+    pts = make_points(2)
+    seq = [(1, 0), (1, 1), (2, 0), (2, 1), (4, 0), (4, 1), (0, 0)]
+    data = b"".join(encode_frame(pts, fn, "sdk3", sub_frame_number=sub) for fn, sub in seq)
+    packets, st = read_all(data)
+    assert [(p.header.frame_number, p.header.sub_frame_number) for p in packets] == seq
+    assert st.restarts == 1 and st.frame_gaps == 1
