@@ -224,3 +224,20 @@ def test_oak_camera_read_pairs_frames_and_reports_loss(tmp_path, monkeypatch):
         with pytest.raises(CameraUnavailable, match="pipeline stopped"):
             cam.read(0.1)
     assert pipe.stopped == 1
+
+
+def test_calibration_from_factory_handler(tmp_path):
+    from drivers.camera.calibration import dumps_calibration, load_calibration
+    from drivers.camera.sources.oak import calibration_from_oak
+
+    h = dai.CalibrationHandler()
+    h.setCameraIntrinsics(dai.CameraBoardSocket.CAM_A, [[1500.0, 0, 960], [0, 1500.0, 540], [0, 0, 1]], 1920, 1080)
+    h.setDistortionCoefficients(dai.CameraBoardSocket.CAM_A, [-0.1, 0.02] + [0.0] * 12)
+    T = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0.1], [0, 1, 0, 0.05], [0, 0, 0, 1]])
+    c = calibration_from_oak(h, (640, 400), T, {"camera_height": 1.2})
+    np.testing.assert_allclose(c.K, [[500, 0, 320], [0, 1500 * 400 / 1080, 200], [0, 0, 1]], rtol=1e-6)
+    assert c.dist.shape == (14,) and c.dist[0] == pytest.approx(-0.1)
+    p = tmp_path / "oak.toml"
+    p.write_text(dumps_calibration(c))
+    again = load_calibration(p)
+    np.testing.assert_array_equal(again.K, c.K)

@@ -297,3 +297,25 @@ class OakCamera(CameraSource):
                 p.stop()
             except Exception as exc:
                 log.debug("oak: stop failed: %s", exc)
+
+
+def calibration_from_oak(handler, image_size: tuple[int, int], T_cam_radar: np.ndarray,
+                         ground: dict | None = None, socket: str = "CAM_A", dai=None) -> Calibration:
+    """A validated Calibration from an OAK's factory calibration (dai.CalibrationHandler, e.g.
+    `device.readCalibration()`), for frames of `image_size` produced with STRETCH (the scaling
+    this backend uses: fx, cx scale with width, fy, cy with height). The extrinsic to the radar
+    is not on the device: give it (e.g. from `estimate_T_cam_radar`)."""
+    from drivers.camera.calibration import validate
+
+    dai = dai or import_depthai()
+    sock = getattr(dai.CameraBoardSocket, socket)
+    w, h = image_size
+    model = handler.getDistortionModel(sock)
+    if "Perspective" not in str(model):
+        raise ConfigError(f"oak: camera {socket} uses the {model} distortion model; only Perspective "
+                          "(OpenCV's pinhole + radial/tangential) is supported")
+    K = np.asarray(handler.getCameraIntrinsics(sock, w, h, keepAspectRatio=False), np.float64)
+    dist = np.asarray(handler.getDistortionCoefficients(sock), np.float64)
+    if dist.size > 14:
+        dist = dist[:14]
+    return validate(K, dist, (w, h), T_cam_radar, ground, path=f"<oak {socket} factory calibration>")
