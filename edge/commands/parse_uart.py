@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     ppf = summary["points_per_frame"]
     fns = summary["frame_numbers"]
     print(f"{args.file}: {st.bytes_in} bytes, {n} frames accepted"
-          + (f" (frame numbers {fns[0]}..{fns[-1]})" if fns else ""))
+          + (f" (frame numbers: first {fns[0]}, last {fns[-1]})" if fns else ""))
     print(f"  formats: {dict(st.formats) or '-'}")
     if ppf:
         print(f"  points per frame: min {min(ppf)}, mean {sum(ppf) / len(ppf):.1f}, max {max(ppf)}, "

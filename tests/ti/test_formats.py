@@ -250,3 +250,27 @@ def test_encode_stream_numbers_frames():
         fns.append(res.packet.header.frame_number)
         off += res.length
     assert fns == [40, 41, 42, 43, 44]
+
+
+def test_shapes_seen_in_real_recordings():
+    """Sizes the reference reports from real captures come out of the writer unchanged."""
+    from drivers.ti.tlv import AzimuthStaticHeatMap, RangeProfile
+    from drivers.ti.writer import TI_PC3D_UNITS
+
+    # SDK 3.3: a 768-byte packet with 20 bytes of padding (33 points + side info + stats)
+    sdk33 = encode_frame(make_points(33), 1, "sdk3", extra_tlvs=[Stats()])
+    assert len(sdk33) == 768 and sdk33[748:] == bytes(20)
+    assert decode_ok(sdk33).points.shape == (33, 5)
+    # IWR1443 SDK 2.1: 36-byte header, Q9 points, 512-B range profile (256 bins),
+    # 8192-B azimuth heat map (256 x 8 virtual antennas x 4 B)
+    rp = RangeProfile(np.arange(256, dtype="<u2"))
+    hm = AzimuthStaticHeatMap(np.zeros(256 * 8, dtype=[("imag", "<i2"), ("real", "<i2")]))
+    iwr = encode_frame(make_points(5, max_range=20.0), 2, "xwr14xx", extra_tlvs=[rp, hm])
+    pkt = decode_ok(iwr)
+    assert pkt.header.size == 36 and pkt.tlvs[0].q_format == 9
+    assert [len(t.to_bytes()) for t in pkt.tlvs[1:]] == [512, 8192]
+    assert pkt.tlvs[2].complex(8).shape == (256, 8)
+    # 3D people counting frame 1: 48 + 132 = 180 bytes (13 compressed points, TI's units)
+    pc = encode_frame(make_points(13, max_range=10.0), 1, "pc3d", units=TI_PC3D_UNITS)
+    assert len(pc) == 180 and struct.unpack_from("<I", pc, 52)[0] == 132
+    assert decode_ok(pc).tlvs[0].units == pytest.approx(TI_PC3D_UNITS)
