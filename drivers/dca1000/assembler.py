@@ -52,13 +52,13 @@ class StreamStats:
 
     packets: int = 0
     payload_bytes: int = 0
-    gaps: int = 0                 # places where the byte count jumped forward (lost packets)
-    lost_bytes_est: int = 0       # bytes skipped at those jumps (reordered ones come back later)
+    gaps: int = 0  # places where the byte count jumped forward (lost packets)
+    lost_bytes_est: int = 0  # bytes skipped at those jumps (reordered ones come back later)
     out_of_order: int = 0
     duplicates: int = 0
     late: int = 0
     bad_packets: int = 0
-    beyond_end: int = 0           # packets or parts after the last expected frame (padding)
+    beyond_end: int = 0  # packets or parts after the last expected frame (padding)
     frames_complete: int = 0
     frames_flagged: int = 0
     frames_dropped: int = 0
@@ -86,9 +86,16 @@ class FrameAssembler:
     packet_bytes: payload size of every packet when known; otherwise learnt from the first packet.
     """
 
-    def __init__(self, frame_bytes: int, num_frames: int | None = None, policy: str = "flag",
-                 reorder_bytes: int = 64 * MAX_PAYLOAD_BYTES, packet_bytes: int | None = None,
-                 check_seq: bool = True, max_jump_frames: int = 1024) -> None:
+    def __init__(
+        self,
+        frame_bytes: int,
+        num_frames: int | None = None,
+        policy: str = "flag",
+        reorder_bytes: int = 64 * MAX_PAYLOAD_BYTES,
+        packet_bytes: int | None = None,
+        check_seq: bool = True,
+        max_jump_frames: int = 1024,
+    ) -> None:
         if frame_bytes <= 0:
             raise ValueError(f"frame_bytes must be > 0, got {frame_bytes}")
         if policy not in ("flag", "drop"):
@@ -103,9 +110,9 @@ class FrameAssembler:
         self.max_jump_bytes = max_jump_frames * frame_bytes
         self.stats = StreamStats()
         self._pending: dict[int, _Pending] = {}
-        self._next: int | None = None     # index of the next frame to emit
-        self._high = 0                    # highest stream byte seen (exclusive)
-        self._expect: int | None = None   # byte count expected for the next in-order packet
+        self._next: int | None = None  # index of the next frame to emit
+        self._high = 0  # highest stream byte seen (exclusive)
+        self._expect: int | None = None  # byte count expected for the next in-order packet
         self._emitted = False
 
     # ------------------------------------------------------------------------------------------
@@ -122,7 +129,9 @@ class FrameAssembler:
             self.packet_bytes = n
         if self.check_seq and byte_count != (seq - 1) * self.packet_bytes:
             st.bad_packets += 1
-            log.debug("packet seq %d: byte count %d contradicts the sequence number", seq, byte_count)
+            log.debug(
+                "packet seq %d: byte count %d contradicts the sequence number", seq, byte_count
+            )
             return []
         if self._expect is not None and byte_count - self._high > self.max_jump_bytes:
             st.bad_packets += 1
@@ -175,14 +184,20 @@ class FrameAssembler:
                     st.duplicates += 1
                     return self._release(False)
                 p.starts.add(byte_count)
-                p.buf[off:off + take] = mv[src:src + take]
+                p.buf[off : off + take] = mv[src : src + take]
                 p.got += take
             pos += take
             src += take
         return self._release(False)
 
-    def add_batch(self, seq: np.ndarray, byte_count: np.ndarray, length: np.ndarray, payload: np.ndarray,
-                  slot_bytes: int) -> list[AdcFrame]:
+    def add_batch(
+        self,
+        seq: np.ndarray,
+        byte_count: np.ndarray,
+        length: np.ndarray,
+        payload: np.ndarray,
+        slot_bytes: int,
+    ) -> list[AdcFrame]:
         """Feed n packets at once: payload of packet i is payload[i*slot_bytes:][:length[i]].
 
         A run of full-size, in-order packets that continues the stream is written as one
@@ -193,17 +208,24 @@ class FrameAssembler:
             return []
         P = self.packet_bytes
         bc0 = int(byte_count[0])
-        fast = (P == slot_bytes and self._expect is not None and bc0 == self._expect and bc0 >= self._high
-                and (self.end_byte is None or bc0 + n * P <= self.end_byte)
-                and bool(np.all(length == P))
-                and bool(np.all(np.diff(byte_count) == P))
-                and (not self.check_seq or bool(np.all(byte_count == (seq - 1) * P)))
-                and bc0 + n * P - self._high <= self.max_jump_bytes)
+        fast = (
+            P == slot_bytes
+            and self._expect is not None
+            and bc0 == self._expect
+            and bc0 >= self._high
+            and (self.end_byte is None or bc0 + n * P <= self.end_byte)
+            and bool(np.all(length == P))
+            and bool(np.all(np.diff(byte_count) == P))
+            and (not self.check_seq or bool(np.all(byte_count == (seq - 1) * P)))
+            and bc0 + n * P - self._high <= self.max_jump_bytes
+        )
         if not fast:
             out: list[AdcFrame] = []
             mv = memoryview(payload)
-            for i, (s, b, ln) in enumerate(zip(seq.tolist(), byte_count.tolist(), length.tolist())):
-                out += self.add(s, b, mv[i * slot_bytes: i * slot_bytes + ln])
+            for i, (s, b, ln) in enumerate(
+                zip(seq.tolist(), byte_count.tolist(), length.tolist(), strict=True)
+            ):
+                out += self.add(s, b, mv[i * slot_bytes : i * slot_bytes + ln])
             return out
         st = self.stats
         st.packets += n
@@ -223,7 +245,7 @@ class FrameAssembler:
                 p = self._pending.get(k)
                 if p is None:
                     p = self._pending[k] = _Pending(bytearray(F))
-                p.buf[off:off + take] = mv[src:src + take]
+                p.buf[off : off + take] = mv[src : src + take]
                 p.got += take
                 first = pos - (pos - bc0) % P  # start of the packet holding byte `pos`
                 p.starts.update(range(first, pos + take, P))
@@ -241,7 +263,12 @@ class FrameAssembler:
         try:
             self._release_into(out, final)
         finally:
-            self._emitted = self._emitted or bool(out) or self.stats.frames_dropped > 0 or self.stats.frames_lost > 0
+            self._emitted = (
+                self._emitted
+                or bool(out)
+                or self.stats.frames_dropped > 0
+                or self.stats.frames_lost > 0
+            )
         return out
 
     def _release_into(self, out: list, final: bool) -> None:
@@ -271,7 +298,12 @@ class FrameAssembler:
             self._next = k + 1
             if final and self.num_frames is None and not self._pending:
                 st.frames_truncated += 1
-                log.debug("frame %d open at the end of the stream (%d of %d bytes): truncated", k, p.got, F)
+                log.debug(
+                    "frame %d open at the end of the stream (%d of %d bytes): truncated",
+                    k,
+                    p.got,
+                    F,
+                )
                 continue
             missing = F - p.got
             if self.policy == "flag":

@@ -19,9 +19,10 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 AWR2243_BENCH_CFG = """\
-% AWR2243BOOST + DCA1000EVM, TDM-MIMO 3 TX x 4 RX, 128 loops (Doppler bins), 256 complex samples,
-% 4-lane LVDS. Vehicle-grade: max range 102 m (0.445 m bins), max velocity +-20.3 m/s (0.317 m/s bins).
-% Written in TI CLI .cfg form so the same parser (drivers/ti/cfg.py) drives the UART and DCA1000 paths.
+% AWR2243BOOST + DCA1000EVM, TDM-MIMO 3 TX x 4 RX, 128 loops (Doppler bins),
+% 256 complex samples, 4-lane LVDS. Vehicle-grade: max range 102 m (0.445 m bins),
+% max velocity +-20.3 m/s (0.317 m/s bins). TI CLI .cfg form, so the same parser
+% (drivers/ti/cfg.py) drives the UART and DCA1000 paths.
 sensorStop
 flushCfg
 dfeDataOutputMode 1
@@ -59,8 +60,13 @@ def bench_dsp(frames: int) -> dict:
 
     cfg = parse_cfg(AWR2243_BENCH_CFG, "<bench>")
     geom, dsp = make_dsp(cfg)
-    targets = [Target(5.0, 0.0, 0.0), Target(22.0, 3.0, 20.0, 5.0), Target(40.0, -15.0, -30.0),
-               Target(60.0, 18.0, 45.0), Target(12.0, -1.0, -10.0, -5.0)]
+    targets = [
+        Target(5.0, 0.0, 0.0),
+        Target(22.0, 3.0, 20.0, 5.0),
+        Target(40.0, -15.0, -30.0),
+        Target(60.0, 18.0, 45.0),
+        Target(12.0, -1.0, -10.0, -5.0),
+    ]
     raw = cube_to_raw(synth_cube(cfg.chirp, geom, targets), geom)
     times = []
     npts = 0
@@ -70,10 +76,16 @@ def bench_dsp(frames: int) -> dict:
         times.append(time.perf_counter() - t0)
         npts = len(res.points)
     t = np.asarray(times[2:]) * 1e3
-    return {"dsp_frame_ms_median": round(float(np.median(t)), 3),
-            "dsp_frame_ms_p90": round(float(np.percentile(t, 90)), 3),
-            "dsp_frames": frames, "dsp_doppler_bins": geom.num_loops, "dsp_virtual_channels": geom.num_virtual,
-            "dsp_samples": geom.num_samples, "dsp_points": npts, "dsp_targets": len(targets)}
+    return {
+        "dsp_frame_ms_median": round(float(np.median(t)), 3),
+        "dsp_frame_ms_p90": round(float(np.percentile(t, 90)), 3),
+        "dsp_frames": frames,
+        "dsp_doppler_bins": geom.num_loops,
+        "dsp_virtual_channels": geom.num_virtual,
+        "dsp_samples": geom.num_samples,
+        "dsp_points": npts,
+        "dsp_targets": len(targets),
+    }
 
 
 def bench_loopback(frames: int, timeout_s: float = 20.0) -> dict:
@@ -83,8 +95,12 @@ def bench_loopback(frames: int, timeout_s: float = 20.0) -> dict:
     from .receiver import DataReceiver
 
     frame_bytes = 384 * 4 * 256 * 4
-    a = np.random.default_rng(7).integers(-2000, 2000, size=frame_bytes // 2, dtype=np.int16).tobytes()
-    src = a + a[frame_bytes // 2:] + a[: frame_bytes // 2]   # two distinct frames
+    a = (
+        np.random.default_rng(7)
+        .integers(-2000, 2000, size=frame_bytes // 2, dtype=np.int16)
+        .tobytes()
+    )
+    src = a + a[frame_bytes // 2 :] + a[: frame_bytes // 2]  # two distinct frames
     ctx = mp.get_context("spawn")
     cport = _free_udp_port()
     asm = FrameAssembler(frame_bytes, num_frames=frames)
@@ -92,8 +108,20 @@ def bench_loopback(frames: int, timeout_s: float = 20.0) -> dict:
     first = last = None
     with DataReceiver(asm, host="127.0.0.1", port=0) as rx:
         ready = ctx.Event()
-        proc = ctx.Process(target=serve_in_process, daemon=True,
-                           args=(src, frame_bytes, frames, rx.address, cport, ready, LOOPBACK_RATE_MB_S, timeout_s))
+        proc = ctx.Process(
+            target=serve_in_process,
+            daemon=True,
+            args=(
+                src,
+                frame_bytes,
+                frames,
+                rx.address,
+                cport,
+                ready,
+                LOOPBACK_RATE_MB_S,
+                timeout_s,
+            ),
+        )
         proc.start()
         try:
             if not ready.wait(15):
@@ -107,7 +135,10 @@ def bench_loopback(frames: int, timeout_s: float = 20.0) -> dict:
                     last = now
                     n += 1
                     k = f.index % 2
-                    exact += bool(f.complete and f.data.tobytes() == src[k * frame_bytes:(k + 1) * frame_bytes])
+                    exact += bool(
+                        f.complete
+                        and f.data.tobytes() == src[k * frame_bytes : (k + 1) * frame_bytes]
+                    )
                 ctl.stop_record()
         finally:
             proc.join(5)
@@ -116,9 +147,16 @@ def bench_loopback(frames: int, timeout_s: float = 20.0) -> dict:
                 proc.join(2)
     mb_s = (n - 1) * frame_bytes / (last - first) / 1e6 if n > 1 and last > first else 0.0
     st = asm.stats
-    return {"loopback_mb_per_s": round(mb_s, 1), "loopback_frames_sent": frames, "loopback_frames": n,
-            "loopback_frames_exact": exact, "loopback_frames_flagged": st.frames_flagged,
-            "loopback_packets": st.packets, "loopback_gaps": st.gaps, "loopback_pacing_mb_per_s": LOOPBACK_RATE_MB_S}
+    return {
+        "loopback_mb_per_s": round(mb_s, 1),
+        "loopback_frames_sent": frames,
+        "loopback_frames": n,
+        "loopback_frames_exact": exact,
+        "loopback_frames_flagged": st.frames_flagged,
+        "loopback_packets": st.packets,
+        "loopback_gaps": st.gaps,
+        "loopback_pacing_mb_per_s": LOOPBACK_RATE_MB_S,
+    }
 
 
 def run(quick: bool = False) -> dict:

@@ -27,9 +27,18 @@ from .protocol import (
 log = logging.getLogger(__name__)
 
 SYSTEM_ERROR_TEXT = {
-    0: "no LVDS data", 1: "no header", 2: "EEPROM failure", 3: "SD card detected",
-    4: "SD card removed", 5: "SD card full", 6: "mode config failure", 7: "DDR full",
-    8: "record completed", 9: "LVDS buffer full", 10: "playback completed", 11: "playback out of sequence",
+    0: "no LVDS data",
+    1: "no header",
+    2: "EEPROM failure",
+    3: "SD card detected",
+    4: "SD card removed",
+    5: "SD card full",
+    6: "mode config failure",
+    7: "DDR full",
+    8: "record completed",
+    9: "LVDS buffer full",
+    10: "playback completed",
+    11: "playback out of sequence",
 }
 
 
@@ -46,15 +55,23 @@ class Dca1000Error(DeviceError):
 class Dca1000Control:
     """Client for the DCA1000 command port.
 
-    host/port: the FPGA's address (192.168.33.180:4096 on a real board, 127.0.0.1 for the fake).
-    local: (ip, port) to bind; the real FPGA answers to the host's port 4096, the fake to the sender.
-    timeout_s: wait per attempt; retries: extra attempts after a timeout (not after an error status).
+    host/port: the FPGA's address (192.168.33.180:4096 on a real board, 127.0.0.1 for
+        the fake).
+    local: (ip, port) to bind; the real FPGA answers to the host's port 4096, the fake to
+        the sender.
+    timeout_s: wait per attempt; retries: extra attempts after a timeout (never after an
+        error status).
     Use as a context manager; `close()` is safe twice.
     """
 
-    def __init__(self, host: str = "192.168.33.180", port: int = CONFIG_PORT,
-                 local: tuple[str, int] = ("192.168.33.30", CONFIG_PORT),
-                 timeout_s: float = 1.0, retries: int = 2) -> None:
+    def __init__(
+        self,
+        host: str = "192.168.33.180",
+        port: int = CONFIG_PORT,
+        local: tuple[str, int] = ("192.168.33.30", CONFIG_PORT),
+        timeout_s: float = 1.0,
+        retries: int = 2,
+    ) -> None:
         if timeout_s <= 0 or retries < 0:
             raise ValueError("timeout_s must be > 0 and retries >= 0")
         self.address = (host, port)
@@ -68,7 +85,9 @@ class Dca1000Control:
         except OSError as exc:
             self._sock.close()
             self._sock = None
-            raise DeviceError(f"cannot bind DCA1000 control socket to {local[0]}:{local[1]}: {exc}") from exc
+            raise DeviceError(
+                f"cannot bind DCA1000 control socket to {local[0]}:{local[1]}: {exc}"
+            ) from exc
         self._sock.setblocking(False)
 
     # -- context manager -------------------------------------------------------------------
@@ -93,8 +112,13 @@ class Dca1000Control:
         for attempt in range(self.retries + 1):
             if attempt:
                 self.retried += 1
-                log.warning("DCA1000 %s: no answer within %.2f s, retry %d/%d",
-                            Cmd(cmd).name, self.timeout_s, attempt, self.retries)
+                log.warning(
+                    "DCA1000 %s: no answer within %.2f s, retry %d/%d",
+                    Cmd(cmd).name,
+                    self.timeout_s,
+                    attempt,
+                    self.retries,
+                )
             self._sock.sendto(packet, self.address)
             response = self._wait_response(cmd)
             if response is None:
@@ -103,8 +127,10 @@ class Dca1000Control:
                 raise Dca1000Error(cmd, response.status, f"failed with status {response.status}")
             log.debug("DCA1000 %s ok (status %d)", Cmd(cmd).name, response.status)
             return response
-        raise DeviceTimeout(f"DCA1000 {Cmd(cmd).name}: no answer from {self.address[0]}:{self.address[1]} "
-                            f"after {self.retries + 1} attempts of {self.timeout_s:.2f} s")
+        raise DeviceTimeout(
+            f"DCA1000 {Cmd(cmd).name}: no answer from {self.address[0]}:{self.address[1]} "
+            f"after {self.retries + 1} attempts of {self.timeout_s:.2f} s"
+        )
 
     def _drain(self) -> None:
         """Discard stale datagrams (late answers to earlier attempts), keeping async reports."""
@@ -144,7 +170,9 @@ class Dca1000Control:
             try:
                 r = ResponsePacket.from_bytes(buf)
             except DecodeError as exc:
-                raise Dca1000Error(cmd, None, f"malformed response {buf[:16].hex()}: {exc}") from exc
+                raise Dca1000Error(
+                    cmd, None, f"malformed response {buf[:16].hex()}: {exc}"
+                ) from exc
             if r.cmd == cmd:
                 return r
             self._note_stray(buf)
@@ -160,13 +188,13 @@ class Dca1000Control:
     def reset_radar(self) -> None:
         self.command(Cmd.RESET_AR_DEV)
 
-    def configure_fpga(self, config: FpgaConfig = FpgaConfig()) -> None:
+    def configure_fpga(self, config: FpgaConfig | None = None) -> None:
         """CONFIG_FPGA_GEN (defaults: raw, 4-lane AWR2243, capture to Ethernet, 16-bit)."""
-        self.command(Cmd.CONFIG_FPGA_GEN, config.to_bytes())
+        self.command(Cmd.CONFIG_FPGA_GEN, (config or FpgaConfig()).to_bytes())
 
-    def configure_packets(self, config: PacketConfig = PacketConfig()) -> None:
+    def configure_packets(self, config: PacketConfig | None = None) -> None:
         """CONFIG_PACKET_DATA: datagram size and inter-packet delay."""
-        self.command(Cmd.CONFIG_PACKET_DATA, config.to_bytes())
+        self.command(Cmd.CONFIG_PACKET_DATA, (config or PacketConfig()).to_bytes())
 
     def start_record(self) -> None:
         self.command(Cmd.RECORD_START)
@@ -176,9 +204,13 @@ class Dca1000Control:
 
     def fpga_version(self) -> FpgaVersion:
         """READ_FPGA_VERSION; the response status carries the version bits."""
-        return FpgaVersion.from_status(self.command(Cmd.READ_FPGA_VERSION, check_status=False).status)
+        return FpgaVersion.from_status(
+            self.command(Cmd.READ_FPGA_VERSION, check_status=False).status
+        )
 
-    def setup(self, fpga: FpgaConfig = FpgaConfig(), packets: PacketConfig = PacketConfig()) -> FpgaVersion:
+    def setup(
+        self, fpga: FpgaConfig | None = None, packets: PacketConfig | None = None
+    ) -> FpgaVersion:
         """The sequence before a capture: connect, read the version, configure FPGA and packets."""
         self.connect()
         version = self.fpga_version()

@@ -1,10 +1,11 @@
 """Radar signal processing of a raw ADC cube into a point cloud (vectorised numpy/scipy).
 
-Chain (per frame): range FFT with window -> optional static clutter removal (subtract the window-weighted mean
-over chirps) -> Doppler FFT with window -> non-coherent sum over virtual channels -> 2D CFAR
-(CA or OS) with peak grouping (local maximum in 3 x 3 cells, Doppler cyclic) -> per detection:
-TDM-MIMO Doppler phase compensation, channel phase calibration, azimuth FFT over the
-horizontal virtual array, elevation from the raised channels -> points x, y, z, doppler, snr.
+Chain (per frame): range FFT with window -> optional static clutter removal (subtract the
+window-weighted mean over chirps) -> Doppler FFT with window -> non-coherent sum over virtual
+channels -> 2D CFAR (CA or OS) with peak grouping (local maximum in 3 x 3 cells, Doppler
+cyclic) -> per detection: TDM-MIMO Doppler phase compensation, channel phase calibration,
+azimuth FFT over the horizontal virtual array, elevation from the raised channels -> points
+x, y, z, doppler, snr.
 
 Frames: radar frame x right, y forward, z up (m); doppler m/s, positive = range increasing;
 snr dB over the CFAR noise estimate. Antenna phase model: see antenna.py.
@@ -97,7 +98,7 @@ class DspConfig:
             elif cmd == "compRangeBiasAndRxChanPhase":
                 kw["range_bias_m"] = a[0]
                 re, im = np.asarray(a[1::2]), np.asarray(a[2::2])
-                kw["channel_phase"] = tuple(complex(x, y) for x, y in zip(re, im))
+                kw["channel_phase"] = tuple(complex(x, y) for x, y in zip(re, im, strict=False))
         kw["guard"], kw["train"] = tuple(guard), tuple(train)
         kw.update(overrides)
         return cls(**kw)
@@ -125,10 +126,16 @@ class RadarDsp:
     positions. Precomputes windows and steering maps; `process(cube)` is then allocation-light.
     """
 
-    def __init__(self, chirp, geom: FrameGeometry, config: DspConfig = DspConfig(),
-                 layout: AntennaLayout = AWR2243BOOST) -> None:
+    def __init__(
+        self,
+        chirp,
+        geom: FrameGeometry,
+        config: DspConfig | None = None,
+        layout: AntennaLayout = AWR2243BOOST,
+    ) -> None:
         self.chirp = chirp
         self.geom = geom
+        config = config if config is not None else DspConfig()
         self.config = config
         self.L = geom.num_loops
         self.T = len(geom.tx_order)
@@ -143,7 +150,9 @@ class RadarDsp:
         self.win_r /= self.win_r.mean()
         self.win_d /= self.win_d.mean()
         max_r = config.max_range_m if config.max_range_m is not None else chirp.max_range_m
-        self.r_lo = max(1, int(math.ceil((config.min_range_m + config.range_bias_m) / self.range_step)))
+        self.r_lo = max(
+            1, int(math.ceil((config.min_range_m + config.range_bias_m) / self.range_step))
+        )
         self.r_hi = min(self.NR, int(max_r / self.range_step) + 1)
         if self.r_lo >= self.r_hi:
             raise ConfigError(f"range limits {config.min_range_m}..{max_r} m leave no range bin")
@@ -152,8 +161,10 @@ class RadarDsp:
         self.slot = np.repeat(np.arange(self.T), geom.num_rx)
         if config.channel_phase is not None:
             if len(config.channel_phase) < self.V:
-                raise ConfigError(f"channel phase calibration has {len(config.channel_phase)} values, "
-                                  f"{self.V} virtual channels need one each")
+                raise ConfigError(
+                    f"channel phase calibration has {len(config.channel_phase)} values, "
+                    f"{self.V} virtual channels need one each"
+                )
             self.cal = np.asarray(config.channel_phase[: self.V], dtype=np.complex64)
         else:
             self.cal = None
@@ -166,7 +177,9 @@ class RadarDsp:
         xa = pos[self.az_idx, 0]
         x0 = xa.min()
         if not np.allclose(xa - x0, np.round(xa - x0)):
-            raise ConfigError(f"layout {layout.name}: azimuth positions {xa} are not on a lambda/2 grid")
+            raise ConfigError(
+                f"layout {layout.name}: azimuth positions {xa} are not on a lambda/2 grid"
+            )
         slots = np.round(xa - x0).astype(int)
         self.n_az = int(slots.max()) + 1
         m = np.zeros((len(self.az_idx), self.n_az), dtype=np.complex64)
@@ -178,13 +191,16 @@ class RadarDsp:
             dz = pos[self.el_idx, 1] - z_az
             self.el_dz = float(dz[0])
             if not np.allclose(dz, self.el_dz) or abs(self.el_dz) > 1.0 + 1e-9:
-                raise ConfigError(f"layout {layout.name}: elevation channels need one row within lambda/2")
+                raise ConfigError(
+                    f"layout {layout.name}: elevation channels need one row within lambda/2"
+                )
         self.n_fft_az = max(config.angle_fft, 1 << (self.n_az - 1).bit_length())
         # CFAR training ring (offsets) for OS and for the ring size in CA
         gr, gd = config.guard
         tr, td = config.train
-        dd, dr = np.meshgrid(np.arange(-(gd + td), gd + td + 1), np.arange(-(gr + tr), gr + tr + 1),
-                             indexing="ij")
+        dd, dr = np.meshgrid(
+            np.arange(-(gd + td), gd + td + 1), np.arange(-(gr + tr), gr + tr + 1), indexing="ij"
+        )
         ring = (np.abs(dd) > gd) | (np.abs(dr) > gr)
         self.ring_d = dd[ring]
         self.ring_r = dr[ring]
@@ -197,7 +213,9 @@ class RadarDsp:
     def range_doppler(self, cube: np.ndarray) -> np.ndarray:
         """complex64 (D, V, R) range-Doppler spectra of a (loops, virtual, samples) cube."""
         if cube.shape != (self.L, self.V, self.N):
-            raise ConfigError(f"cube shape {cube.shape} does not match the cfg {(self.L, self.V, self.N)}")
+            raise ConfigError(
+                f"cube shape {cube.shape} does not match the cfg {(self.L, self.V, self.N)}"
+            )
         x = cube * self.win_r
         x = sfft.fft(x, n=self.NR, axis=2, workers=1, overwrite_x=True)
         if self.config.clutter_removal:
@@ -227,7 +245,6 @@ class RadarDsp:
         cfg = self.config
         spec = self.range_doppler(cube)
         power = self.detection_map(spec)
-        D = self.L
         noise = self.ca_noise(power)
         cand = power > self.thr * noise
         if cfg.cfar == "os":
@@ -236,7 +253,7 @@ class RadarDsp:
             floor = np.median(power, axis=0)
             cand = power > (self.thr / 10.0) * floor[None, :]
         cand[:, : self.r_lo] = False
-        cand[:, self.r_hi:] = False
+        cand[:, self.r_hi :] = False
         d, r = np.nonzero(cand)
         if cfg.peak_grouping and len(d):
             d, r = self._local_max(power, d, r)
@@ -250,8 +267,12 @@ class RadarDsp:
             keep.sort()
             d, r, p, nz = d[keep], r[keep], p[keep], nz[keep]
         points = self._points(spec, power, d, r, p, nz) if len(d) else empty_points()
-        return DspResult(points, np.stack([d, r], axis=1), power if keep_maps else None,
-                         noise if keep_maps else None)
+        return DspResult(
+            points,
+            np.stack([d, r], axis=1),
+            power if keep_maps else None,
+            noise if keep_maps else None,
+        )
 
     @staticmethod
     def _local_max(power, d, r):
@@ -278,13 +299,15 @@ class RadarDsp:
     def _points(self, spec, power, d, r, p, nz) -> np.ndarray:
         cfg = self.config
         ds = self.d_signed[d]
-        y = spec[d, :, r]                                                     # (K, V)
+        y = spec[d, :, r]  # (K, V)
         # TDM-MIMO: slot k fires k*Tc after slot 0; remove the Doppler phase it accumulated
         if cfg.tdm_compensation:
-            y = y * np.exp(-2j * np.pi * np.outer(ds, self.slot) / (self.L * self.T)).astype(np.complex64)
+            y = y * np.exp(-2j * np.pi * np.outer(ds, self.slot) / (self.L * self.T)).astype(
+                np.complex64
+            )
         if self.cal is not None:
             y = y * self.cal
-        a = y[:, self.az_idx] @ self.az_map                                   # (K, n_az)
+        a = y[:, self.az_idx] @ self.az_map  # (K, n_az)
         s = np.abs(sfft.fft(a, n=self.n_fft_az, axis=1, workers=1))
         k = np.argmax(s, axis=1)
         idx = np.arange(len(k))
@@ -295,7 +318,7 @@ class RadarDsp:
         delta = np.where(den < 0, 0.5 * (lm - lp) / np.where(den < 0, den, -1), 0.0)
         f = (k + delta) / self.n_fft_az
         f = np.where(f >= 0.5, f - 1.0, f)
-        ux = np.clip(-2.0 * f, -1.0, 1.0)                                     # phase -pi x u_x
+        ux = np.clip(-2.0 * f, -1.0, 1.0)  # phase -pi x u_x
         uz = np.zeros_like(ux)
         if cfg.elevation and len(self.el_idx):
             steer = np.exp(1j * np.pi * np.outer(ux, self.pos[:, 0])).astype(np.complex64)
@@ -329,11 +352,14 @@ class RadarDsp:
             lp = power[(d + 1) % D, r]
         lm, l0, lp = np.log(lm + 1e-30), np.log(power[d, r] + 1e-30), np.log(lp + 1e-30)
         den = lm - 2 * l0 + lp
-        return np.clip(np.where(den < 0, 0.5 * (lm - lp) / np.where(den < 0, den, -1), 0.0), -0.5, 0.5)
+        return np.clip(
+            np.where(den < 0, 0.5 * (lm - lp) / np.where(den < 0, den, -1), 0.0), -0.5, 0.5
+        )
 
 
-def make_dsp(cfg, layout: str | AntennaLayout = "4lane", antenna: AntennaLayout = AWR2243BOOST,
-             **overrides) -> tuple[FrameGeometry, RadarDsp]:
+def make_dsp(
+    cfg, layout: str | AntennaLayout = "4lane", antenna: AntennaLayout = AWR2243BOOST, **overrides
+) -> tuple[FrameGeometry, RadarDsp]:
     """FrameGeometry and RadarDsp for a parsed .cfg (drivers.ti.cfg.RadarCfg)."""
     geom = FrameGeometry.from_chirp(cfg.chirp, layout)
     return geom, RadarDsp(cfg.chirp, geom, DspConfig.from_cfg(cfg, **overrides), antenna)

@@ -47,20 +47,35 @@ class FakeDca1000:
     Use as a context manager; `close()` stops the threads and closes the sockets (safe twice).
     """
 
-    def __init__(self, source: bytes, frame_bytes: int, num_frames: int, data_dest: tuple[str, int],
-                 control_port: int = 0, loss: float = 0.0, reorder: float = 0.0, seed: int = 0,
-                 rate_mb_s: float | None = None, payload_bytes: int = MAX_PAYLOAD_BYTES,
-                 fail: dict[int, int] | None = None, mute: int = 0,
-                 version: FpgaVersion = FpgaVersion(2, 8, False)) -> None:
+    def __init__(
+        self,
+        source: bytes,
+        frame_bytes: int,
+        num_frames: int,
+        data_dest: tuple[str, int],
+        control_port: int = 0,
+        loss: float = 0.0,
+        reorder: float = 0.0,
+        seed: int = 0,
+        rate_mb_s: float | None = None,
+        payload_bytes: int = MAX_PAYLOAD_BYTES,
+        fail: dict[int, int] | None = None,
+        mute: int = 0,
+        version: FpgaVersion | None = None,
+    ) -> None:
         if len(source) == 0 or len(source) % frame_bytes:
-            raise ValueError(f"source of {len(source)} bytes is not a whole number of {frame_bytes}-byte frames")
+            raise ValueError(
+                f"source of {len(source)} bytes is not a whole number of {frame_bytes}-byte frames"
+            )
         self.frame_bytes = frame_bytes
         self.num_frames = num_frames
         self.total_bytes = frame_bytes * num_frames
         self.payload_bytes = payload_bytes
         self.num_packets = -(-self.total_bytes // payload_bytes)
         # the source plus one packet of wrap-around, so any packet is one contiguous slice
-        self._src = bytes(source) + bytes(source[:payload_bytes]) * (-(-payload_bytes // len(source)))
+        self._src = bytes(source) + bytes(source[:payload_bytes]) * (
+            -(-payload_bytes // len(source))
+        )
         self._src_len = len(source)
         self.data_dest = data_dest
         self.loss = loss
@@ -69,7 +84,7 @@ class FakeDca1000:
         self.rate = None if rate_mb_s is None else rate_mb_s * 1e6
         self.fail = dict(fail or {})
         self.mute = mute
-        self.version = version
+        self.version = version if version is not None else FpgaVersion(2, 8, False)
         self.commands: list[tuple[int, bytes]] = []
         self.fpga_config: FpgaConfig | None = None
         self.packet_config: PacketConfig | None = None
@@ -86,7 +101,9 @@ class FakeDca1000:
         self._stop = threading.Event()
         self._stream_stop = threading.Event()
         self._stream_thread: threading.Thread | None = None
-        self._ctl_thread = threading.Thread(target=self._serve, name="fake-dca1000-ctl", daemon=True)
+        self._ctl_thread = threading.Thread(
+            target=self._serve, name="fake-dca1000-ctl", daemon=True
+        )
         self._ctl_thread.start()
 
     # -- lifecycle -------------------------------------------------------------------------------
@@ -166,7 +183,9 @@ class FakeDca1000:
         """Start streaming one recording (also what RECORD_START does)."""
         self._stream_stop.clear()
         self.stream_done.clear()
-        self._stream_thread = threading.Thread(target=self.stream, name="fake-dca1000-data", daemon=True)
+        self._stream_thread = threading.Thread(
+            target=self.stream, name="fake-dca1000-data", daemon=True
+        )
         self._stream_thread.start()
 
     def packet_order(self) -> np.ndarray:
@@ -209,7 +228,7 @@ class FakeDca1000:
             for j in range(0, len(order), batch):
                 if self._stream_stop.is_set():
                     break
-                idx = order[j:j + batch].astype(np.int64)
+                idx = order[j : j + batch].astype(np.int64)
                 bc = idx * P
                 full = bc + P <= total
                 if sender is not None and full.all():
@@ -234,21 +253,34 @@ class FakeDca1000:
         bc = i * P
         off = bc % self._src_len
         n = min(P, self.total_bytes - bc)
-        payload = self._src[off: off + n] + bytes(P - n)
+        payload = self._src[off : off + n] + bytes(P - n)
         self._data.send(_HEAD.pack(i + 1, bc & 0xFFFFFFFF, bc >> 32) + payload)
         return 1
 
 
-def serve_in_process(source: bytes, frame_bytes: int, num_frames: int, data_dest: tuple[str, int],
-                     control_port: int, ready, rate_mb_s: float | None = None, timeout_s: float = 30.0) -> None:
-    """Run a FakeDca1000 until its stream has been sent once (target of a multiprocessing.Process)."""
-    with FakeDca1000(source, frame_bytes, num_frames, data_dest, control_port=control_port,
-                     rate_mb_s=rate_mb_s) as fake:
+def serve_in_process(
+    source: bytes,
+    frame_bytes: int,
+    num_frames: int,
+    data_dest: tuple[str, int],
+    control_port: int,
+    ready,
+    rate_mb_s: float | None = None,
+    timeout_s: float = 30.0,
+) -> None:
+    """Run a FakeDca1000 until its stream has been sent once (multiprocessing.Process target)."""
+    with FakeDca1000(
+        source, frame_bytes, num_frames, data_dest, control_port=control_port, rate_mb_s=rate_mb_s
+    ) as fake:
         ready.set()
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if fake.stream_done.wait(0.05) and any(c == Cmd.RECORD_STOP for c, _ in fake.commands):
-                log.info("fake DCA1000 sent %d packets in %.3f s (%.1f MB/s)", fake.sent_packets,
-                         fake.stream_seconds, fake.sent_packets * fake.payload_bytes / max(fake.stream_seconds, 1e-9) / 1e6)
+                log.info(
+                    "fake DCA1000 sent %d packets in %.3f s (%.1f MB/s)",
+                    fake.sent_packets,
+                    fake.stream_seconds,
+                    fake.sent_packets * fake.payload_bytes / max(fake.stream_seconds, 1e-9) / 1e6,
+                )
                 time.sleep(0.05)  # let the RECORD_STOP answer out
                 break

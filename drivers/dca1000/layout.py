@@ -52,13 +52,16 @@ class FrameGeometry:
             raise ConfigError(f"RX indices {self.rx} must be distinct, ascending, 0..3")
 
     @classmethod
-    def from_chirp(cls, chirp, layout: RawLayout | str = RawLayout.FOUR_LANE, iq_swap: bool = False
-                   ) -> "FrameGeometry":
+    def from_chirp(
+        cls, chirp, layout: RawLayout | str = RawLayout.FOUR_LANE, iq_swap: bool = False
+    ) -> "FrameGeometry":
         """From drivers.ti.cfg.ChirpParams (TDM-MIMO: each chirp of a loop uses another TX)."""
         order = tuple(chirp.tx_order)
         if len(set(order)) != len(order):
-            raise ConfigError(f"chirp TX order {order} repeats a TX within a loop; "
-                              "only TDM-MIMO (one TX per chirp slot) is supported")
+            raise ConfigError(
+                f"chirp TX order {order} repeats a TX within a loop; "
+                "only TDM-MIMO (one TX per chirp slot) is supported"
+            )
         rx = tuple(i for i in range(4) if chirp.rx_mask >> i & 1)
         return cls(RawLayout(layout), chirp.num_loops, order, rx, chirp.num_adc_samples, iq_swap)
 
@@ -87,7 +90,11 @@ class FrameGeometry:
 
 
 def _as_int16(raw, geom: FrameGeometry) -> np.ndarray:
-    a = np.frombuffer(raw, dtype="<i2") if not isinstance(raw, np.ndarray) else raw.view("<i2").reshape(-1)
+    a = (
+        np.frombuffer(raw, dtype="<i2")
+        if not isinstance(raw, np.ndarray)
+        else raw.view("<i2").reshape(-1)
+    )
     if a.size * 2 != geom.frame_bytes:
         raise ParseError(f"raw frame of {a.size * 2} bytes, the cfg implies {geom.frame_bytes}")
     return a
@@ -101,7 +108,7 @@ def raw_to_cube(raw, geom: FrameGeometry) -> np.ndarray:
     o = out.view(np.float32).reshape(C, geom.num_rx, N, 2)
     i_pos, q_pos = (1, 0) if geom.iq_swap else (0, 1)
     if geom.layout is RawLayout.FOUR_LANE:
-        s = a.reshape(C, N, 2, 4)                       # chirp, sample, I/Q, lane
+        s = a.reshape(C, N, 2, 4)  # chirp, sample, I/Q, lane
         rx = list(geom.rx)
         if rx == [0, 1, 2, 3]:
             o[..., 0] = s[:, :, i_pos, :].transpose(0, 2, 1)
@@ -110,7 +117,7 @@ def raw_to_cube(raw, geom: FrameGeometry) -> np.ndarray:
             o[..., 0] = s[:, :, i_pos, rx].transpose(0, 2, 1)
             o[..., 1] = s[:, :, q_pos, rx].transpose(0, 2, 1)
     else:
-        s = a.reshape(C, geom.num_rx, N // 2, 2, 2)     # chirp, rx, sample pair, I/Q, even/odd
+        s = a.reshape(C, geom.num_rx, N // 2, 2, 2)  # chirp, rx, sample pair, I/Q, even/odd
         o5 = out.view(np.float32).reshape(C, geom.num_rx, N // 2, 2, 2)  # ..., even/odd, re/im
         o5[..., 0] = s[:, :, :, i_pos, :]
         o5[..., 1] = s[:, :, :, q_pos, :]
@@ -118,7 +125,7 @@ def raw_to_cube(raw, geom: FrameGeometry) -> np.ndarray:
 
 
 def disabled_lane_energy(raw, geom: FrameGeometry) -> int:
-    """Largest |sample| on the 4-lane stream's disabled RX lanes (0 when the cfg matches the data)."""
+    """Largest |sample| on the 4-lane stream's disabled RX lanes (0 if the cfg matches the data)."""
     if geom.layout is not RawLayout.FOUR_LANE or geom.num_rx == 4:
         return 0
     s = _as_int16(raw, geom).reshape(geom.num_chirps, geom.num_samples, 2, 4)
@@ -135,7 +142,7 @@ def cube_to_raw(cube: np.ndarray, geom: FrameGeometry) -> bytes:
     if cube.shape != (geom.num_loops, geom.num_virtual, N):
         raise ValueError(f"cube shape {cube.shape} != {(geom.num_loops, geom.num_virtual, N)}")
     c = cube.reshape(C, R, N)
-    iq = np.stack([c.real, c.imag], axis=-1)            # C, R, N, 2
+    iq = np.stack([c.real, c.imag], axis=-1)  # C, R, N, 2
     if geom.iq_swap:
         iq = iq[..., ::-1]
     iq = np.clip(np.rint(iq), -32768, 32767).astype("<i2")

@@ -23,10 +23,15 @@ class _Iovec(ctypes.Structure):
 
 
 class _Msghdr(ctypes.Structure):
-    _fields_ = [("msg_name", ctypes.c_void_p), ("msg_namelen", ctypes.c_uint32),
-                ("msg_iov", ctypes.POINTER(_Iovec)), ("msg_iovlen", ctypes.c_size_t),
-                ("msg_control", ctypes.c_void_p), ("msg_controllen", ctypes.c_size_t),
-                ("msg_flags", ctypes.c_int)]
+    _fields_ = [
+        ("msg_name", ctypes.c_void_p),
+        ("msg_namelen", ctypes.c_uint32),
+        ("msg_iov", ctypes.POINTER(_Iovec)),
+        ("msg_iovlen", ctypes.c_size_t),
+        ("msg_control", ctypes.c_void_p),
+        ("msg_controllen", ctypes.c_size_t),
+        ("msg_flags", ctypes.c_int),
+    ]
 
 
 class _Mmsghdr(ctypes.Structure):
@@ -39,7 +44,13 @@ MSG_TRUNC = getattr(socket, "MSG_TRUNC", 0x20)
 try:
     _libc = ctypes.CDLL(None, use_errno=True)
     _recvmmsg = _libc.recvmmsg
-    _recvmmsg.argtypes = [ctypes.c_int, ctypes.POINTER(_Mmsghdr), ctypes.c_uint, ctypes.c_int, ctypes.c_void_p]
+    _recvmmsg.argtypes = [
+        ctypes.c_int,
+        ctypes.POINTER(_Mmsghdr),
+        ctypes.c_uint,
+        ctypes.c_int,
+        ctypes.c_void_p,
+    ]
     _recvmmsg.restype = ctypes.c_int
     _sendmmsg = _libc.sendmmsg
     _sendmmsg.argtypes = [ctypes.c_int, ctypes.POINTER(_Mmsghdr), ctypes.c_uint, ctypes.c_int]
@@ -68,15 +79,19 @@ class _Batch:
         # numpy views of the iovec fields and of msg_len / msg_flags for vectorised access
         self.iov_u64 = np.frombuffer(self.iov, dtype=np.uint64).reshape(2 * batch, 2)
         raw = np.frombuffer(self.msgs, dtype=np.uint8).reshape(batch, ctypes.sizeof(_Mmsghdr))
-        self.msg_len = raw[:, _Mmsghdr.msg_len.offset:_Mmsghdr.msg_len.offset + 4].view("<u4")[:, 0]
+        self.msg_len = raw[:, _Mmsghdr.msg_len.offset : _Mmsghdr.msg_len.offset + 4].view("<u4")[
+            :, 0
+        ]
         off = _Mmsghdr.msg_hdr.offset + _Msghdr.msg_flags.offset
-        self.msg_flags = raw[:, off:off + 4].view("<i4")[:, 0]
+        self.msg_flags = raw[:, off : off + 4].view("<i4")[:, 0]
 
 
 class BatchReceiver:
     """recvmmsg into fixed buffers: headers (batch, 10) uint8 and payload (batch * P,) uint8."""
 
-    def __init__(self, sock: socket.socket, batch: int = 64, payload_bytes: int = MAX_PAYLOAD_BYTES) -> None:
+    def __init__(
+        self, sock: socket.socket, batch: int = 64, payload_bytes: int = MAX_PAYLOAD_BYTES
+    ) -> None:
         self.fd = sock.fileno()
         self.P = payload_bytes
         self.b = _Batch(batch)
@@ -106,7 +121,12 @@ class BatchReceiver:
         seq = h[:, 0:4].copy().view("<u4")[:, 0].astype(np.int64)
         lo = h[:, 4:8].copy().view("<u4")[:, 0].astype(np.int64)
         hi = h[:, 8:10].copy().view("<u2")[:, 0].astype(np.int64)
-        return seq, lo | (hi << 32), self.b.msg_len[:n].astype(np.int64), (self.b.msg_flags[:n] & MSG_TRUNC) != 0
+        return (
+            seq,
+            lo | (hi << 32),
+            self.b.msg_len[:n].astype(np.int64),
+            (self.b.msg_flags[:n] & MSG_TRUNC) != 0,
+        )
 
 
 class BatchSender:
@@ -119,10 +139,14 @@ class BatchSender:
         self._src = np.frombuffer(source, dtype=np.uint8)
         self._src_addr = self._src.ctypes.data
         iov = self.b.iov_u64
-        iov[0::2, 0] = self.headers.ctypes.data + DATA_HEADER_BYTES * np.arange(batch, dtype=np.uint64)
+        iov[0::2, 0] = self.headers.ctypes.data + DATA_HEADER_BYTES * np.arange(
+            batch, dtype=np.uint64
+        )
         iov[0::2, 1] = DATA_HEADER_BYTES
 
-    def send(self, seq: np.ndarray, byte_count: np.ndarray, src_offset: np.ndarray, length: np.ndarray) -> int:
+    def send(
+        self, seq: np.ndarray, byte_count: np.ndarray, src_offset: np.ndarray, length: np.ndarray
+    ) -> int:
         """Send len(seq) <= batch packets: header (seq, byte_count) + source[src_offset:+length]."""
         n = len(seq)
         h = self.headers[:n]
@@ -130,8 +154,8 @@ class BatchSender:
         h[:, 4:8] = (byte_count & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
         h[:, 8:10] = (byte_count >> 32).astype("<u2").view(np.uint8).reshape(n, 2)
         iov = self.b.iov_u64
-        iov[1:2 * n:2, 0] = self._src_addr + src_offset.astype(np.uint64)
-        iov[1:2 * n:2, 1] = length.astype(np.uint64)
+        iov[1 : 2 * n : 2, 0] = self._src_addr + src_offset.astype(np.uint64)
+        iov[1 : 2 * n : 2, 1] = length.astype(np.uint64)
         sent = 0
         while sent < n:
             r = _sendmmsg(self.fd, ctypes.byref(self.b.msgs[sent]), n - sent, 0)

@@ -1,4 +1,4 @@
-"""DCA1000EVM wire records: UDP command/response packets (port 4096) and raw data packets (port 4098).
+"""DCA1000EVM wire records: UDP command/response (port 4096) and raw data packets (port 4098).
 
 Layouts from ti_formats.md section 1b (TI DCA1000 CLI source). All fields little-endian.
 
@@ -84,7 +84,11 @@ class CommandPacket:
     data: bytes = b""
 
     def to_bytes(self) -> bytes:
-        return _CMD_HEAD.pack(HEADER, int(self.cmd), len(self.data)) + bytes(self.data) + FOOTER.to_bytes(2, "little")
+        return (
+            _CMD_HEAD.pack(HEADER, int(self.cmd), len(self.data))
+            + bytes(self.data)
+            + FOOTER.to_bytes(2, "little")
+        )
 
     @classmethod
     def from_bytes(cls, buf: bytes) -> "CommandPacket":
@@ -96,10 +100,10 @@ class CommandPacket:
             raise DecodeError(f"command header 0x{header:04X} != 0x{HEADER:04X}")
         if len(buf) != 8 + size:
             raise DecodeError(f"command data size {size} does not match a {len(buf)}-byte datagram")
-        footer = int.from_bytes(buf[6 + size: 8 + size], "little")
+        footer = int.from_bytes(buf[6 + size : 8 + size], "little")
         if footer != FOOTER:
             raise DecodeError(f"command footer 0x{footer:04X} != 0x{FOOTER:04X}")
-        return cls(cmd, bytes(buf[6: 6 + size]))
+        return cls(cmd, bytes(buf[6 : 6 + size]))
 
 
 @dataclass(frozen=True)
@@ -137,18 +141,34 @@ class FpgaConfig:
     lvds_timeout: int = 30
 
     def to_bytes(self) -> bytes:
-        return bytes([int(self.log_mode), int(self.lvds_mode), int(self.transfer_mode),
-                      int(self.capture_mode), int(self.data_format), int(self.lvds_timeout)])
+        return bytes(
+            [
+                int(self.log_mode),
+                int(self.lvds_mode),
+                int(self.transfer_mode),
+                int(self.capture_mode),
+                int(self.data_format),
+                int(self.lvds_timeout),
+            ]
+        )
 
     @classmethod
     def from_bytes(cls, buf: bytes) -> "FpgaConfig":
         if len(buf) != 6:
             raise DecodeError(f"FPGA config payload of {len(buf)} bytes, expected 6")
         try:
-            return cls(LogMode(buf[0]), LvdsMode(buf[1]), TransferMode(buf[2]), CaptureMode(buf[3]),
-                       DataFormat(buf[4]), buf[5])
+            return cls(
+                LogMode(buf[0]),
+                LvdsMode(buf[1]),
+                TransferMode(buf[2]),
+                CaptureMode(buf[3]),
+                DataFormat(buf[4]),
+                buf[5],
+            )
         except ValueError as exc:
-            raise DecodeError(f"FPGA config payload {bytes(buf).hex()} has an invalid field: {exc}") from exc
+            raise DecodeError(
+                f"FPGA config payload {bytes(buf).hex()} has an invalid field: {exc}"
+            ) from exc
 
 
 @dataclass(frozen=True)
@@ -164,7 +184,9 @@ class PacketConfig:
     def to_bytes(self) -> bytes:
         clocks = int(round(self.delay_us * 1000 / 8))
         if not 0 <= clocks <= 0xFFFF:
-            raise ValueError(f"packet delay {self.delay_us} us does not fit in 16 bits of 8-ns clocks")
+            raise ValueError(
+                f"packet delay {self.delay_us} us does not fit in 16 bits of 8-ns clocks"
+            )
         return struct.pack("<HHH", self.packet_bytes, clocks, 0)
 
     @classmethod

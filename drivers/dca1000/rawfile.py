@@ -48,27 +48,35 @@ class RawCapture:
         extra = len(data) % F
         self.padding_bytes = 0
         if extra:
-            tail = data[len(data) - extra:]
+            tail = data[len(data) - extra :]
             if len(data) >= F and extra < MAX_PAYLOAD_BYTES and not tail.any():
                 self.padding_bytes = extra
-                log.info("%s: ignoring %d zero bytes of packet padding after the last frame", name, extra)
+                log.info(
+                    "%s: ignoring %d zero bytes of packet padding after the last frame", name, extra
+                )
             else:
                 raise ParseError(
                     f"{name}: {len(data)} bytes is not a whole number of {F}-byte frames "
-                    f"({len(data) // F} frames + {extra} bytes); the cfg does not match the capture "
-                    f"(chirps x lanes x samples x 4 = {geom.num_chirps} x {geom.lanes} x {geom.num_samples} x 4)")
+                    f"({len(data) // F} frames + {extra} bytes); the cfg does not match the "
+                    f"capture (chirps x lanes x samples x 4 = {geom.num_chirps} x {geom.lanes}"
+                    f" x {geom.num_samples} x 4)"
+                )
         self.num_frames = len(data) // F
         if self.num_frames == 0:
             raise ParseError(f"{name}: no complete frame ({len(data)} bytes < {F})")
         if expected_frames and self.num_frames > expected_frames:
-            raise ParseError(f"{name}: {self.num_frames} frames but the cfg's frameCfg records only "
-                             f"{expected_frames}; the cfg does not match the capture")
+            raise ParseError(
+                f"{name}: {self.num_frames} frames but the cfg's frameCfg records only "
+                f"{expected_frames}; the cfg does not match the capture"
+            )
         self._data = data[: self.num_frames * F]
         if geom.num_rx < 4 and geom.lanes == 4:
             leak = disabled_lane_energy(self.frame(0), geom)
             if leak:
-                raise ParseError(f"{name}: disabled RX lanes carry data (|sample| up to {leak}); "
-                                 "the cfg's channelCfg RX mask does not match the capture")
+                raise ParseError(
+                    f"{name}: disabled RX lanes carry data (|sample| up to {leak}); "
+                    "the cfg's channelCfg RX mask does not match the capture"
+                )
 
     def __len__(self) -> int:
         return self.num_frames
@@ -78,7 +86,7 @@ class RawCapture:
         if not 0 <= k < self.num_frames:
             raise IndexError(f"frame {k} out of 0..{self.num_frames - 1}")
         F = self.geom.frame_bytes
-        return self._data[k * F: (k + 1) * F]
+        return self._data[k * F : (k + 1) * F]
 
     def __iter__(self) -> Iterator[np.ndarray]:
         for k in range(self.num_frames):

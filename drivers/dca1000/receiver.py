@@ -12,8 +12,8 @@ import numpy as np
 
 from mmatch.errors import DeviceError
 
-from .assembler import AdcFrame, FrameAssembler
 from . import mmsg
+from .assembler import AdcFrame, FrameAssembler
 from .protocol import DATA_HEADER_BYTES, DATA_PORT, MAX_PAYLOAD_BYTES, unpack_data_header
 
 log = logging.getLogger(__name__)
@@ -31,8 +31,14 @@ class DataReceiver:
     Use as a context manager; `close()` is safe twice.
     """
 
-    def __init__(self, assembler: FrameAssembler, host: str = "192.168.33.30", port: int = DATA_PORT,
-                 rcvbuf: int = DEFAULT_RCVBUF, batch: int = 64) -> None:
+    def __init__(
+        self,
+        assembler: FrameAssembler,
+        host: str = "192.168.33.30",
+        port: int = DATA_PORT,
+        rcvbuf: int = DEFAULT_RCVBUF,
+        batch: int = 64,
+    ) -> None:
         self.assembler = assembler
         self.batch = batch
         self._sock: socket.socket | None = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -42,12 +48,20 @@ class DataReceiver:
         except OSError as exc:
             self._sock.close()
             self._sock = None
-            raise DeviceError(f"cannot open the DCA1000 data socket on {host}:{port}: {exc}") from exc
+            raise DeviceError(
+                f"cannot open the DCA1000 data socket on {host}:{port}: {exc}"
+            ) from exc
         self._sock.setblocking(False)
-        granted = self._sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2  # Linux doubles it
+        granted = (
+            self._sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2
+        )  # Linux doubles it
         self.rcvbuf = granted
         if granted < rcvbuf:
-            log.warning("socket receive buffer %d B < requested %d B; raise net.core.rmem_max", granted, rcvbuf)
+            log.warning(
+                "socket receive buffer %d B < requested %d B; raise net.core.rmem_max",
+                granted,
+                rcvbuf,
+            )
         self.address = self._sock.getsockname()
         self.short_datagrams = 0
 
@@ -66,8 +80,13 @@ class DataReceiver:
     def stats(self):
         return self.assembler.stats
 
-    def frames(self, idle_timeout_s: float = 0.5, max_frames: int | None = None,
-               deadline_s: float | None = None, flush: bool = True) -> Iterator[AdcFrame]:
+    def frames(
+        self,
+        idle_timeout_s: float = 0.5,
+        max_frames: int | None = None,
+        deadline_s: float | None = None,
+        flush: bool = True,
+    ) -> Iterator[AdcFrame]:
         """Yield frames as they complete.
 
         Stops when no packet arrived for idle_timeout_s (the stream ended: pending frames are
@@ -117,8 +136,9 @@ class DataReceiver:
                 if max_frames is not None and emitted >= max_frames:
                     return
 
-    def _frames_batched(self, idle_timeout_s: float, max_frames: int | None, deadline_s: float | None,
-                        flush: bool) -> Iterator[AdcFrame]:
+    def _frames_batched(
+        self, idle_timeout_s: float, max_frames: int | None, deadline_s: float | None, flush: bool
+    ) -> Iterator[AdcFrame]:
         sock = self._sock
         br = mmsg.BatchReceiver(sock, self.batch, MAX_PAYLOAD_BYTES)
         asm = self.assembler
@@ -151,7 +171,7 @@ class DataReceiver:
                         continue
                     sq, lo, hi = unpack_data_header(hmv, i * DATA_HEADER_BYTES)
                     o = i * MAX_PAYLOAD_BYTES
-                    out += asm.add(sq, lo | (hi << 32), pmv[o: o + ln - DATA_HEADER_BYTES])
+                    out += asm.add(sq, lo | (hi << 32), pmv[o : o + ln - DATA_HEADER_BYTES])
                 for frame in out:
                     yield frame
                     emitted += 1
@@ -168,10 +188,19 @@ class DataReceiver:
                 out = []
                 mv = memoryview(br.payload)
                 for i in good.tolist():
-                    out += asm.add(int(seq[i]), int(bc[i]),
-                                   mv[i * MAX_PAYLOAD_BYTES: i * MAX_PAYLOAD_BYTES + int(dlen[i]) - DATA_HEADER_BYTES])
+                    out += asm.add(
+                        int(seq[i]),
+                        int(bc[i]),
+                        mv[
+                            i * MAX_PAYLOAD_BYTES : i * MAX_PAYLOAD_BYTES
+                            + int(dlen[i])
+                            - DATA_HEADER_BYTES
+                        ],
+                    )
             else:
-                out = asm.add_batch(seq, bc, dlen - DATA_HEADER_BYTES, br.payload, MAX_PAYLOAD_BYTES)
+                out = asm.add_batch(
+                    seq, bc, dlen - DATA_HEADER_BYTES, br.payload, MAX_PAYLOAD_BYTES
+                )
             for frame in out:
                 yield frame
                 emitted += 1

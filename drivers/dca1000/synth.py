@@ -39,8 +39,11 @@ class Target:
 
     def xyz(self) -> tuple[float, float, float]:
         az, el = math.radians(self.azimuth_deg), math.radians(self.elevation_deg)
-        return (self.range_m * math.sin(az) * math.cos(el), self.range_m * math.cos(az) * math.cos(el),
-                self.range_m * math.sin(el))
+        return (
+            self.range_m * math.sin(az) * math.cos(el),
+            self.range_m * math.cos(az) * math.cos(el),
+            self.range_m * math.sin(el),
+        )
 
 
 def centre_frequency_hz(chirp) -> float:
@@ -49,9 +52,16 @@ def centre_frequency_hz(chirp) -> float:
     return chirp.start_freq_ghz * 1e9 + chirp.slope_mhz_per_us * 1e12 * mid_us * 1e-6
 
 
-def synth_cube(chirp, geom: FrameGeometry, targets: list[Target], layout: AntennaLayout = AWR2243BOOST,
-               noise_lsb: float = 4.0, frame_index: int = 0, rng: np.random.Generator | None = None,
-               quantise: bool = True) -> np.ndarray:
+def synth_cube(
+    chirp,
+    geom: FrameGeometry,
+    targets: list[Target],
+    layout: AntennaLayout = AWR2243BOOST,
+    noise_lsb: float = 4.0,
+    frame_index: int = 0,
+    rng: np.random.Generator | None = None,
+    quantise: bool = True,
+) -> np.ndarray:
     """complex64 (loops, virtual, samples) ADC cube of one frame, in LSB (int16 values if quantise).
 
     chirp: drivers.ti.cfg.ChirpParams; geom: FrameGeometry of the same cfg; noise_lsb: std of the
@@ -65,18 +75,18 @@ def synth_cube(chirp, geom: FrameGeometry, targets: list[Target], layout: Antenn
     fs = chirp.sample_rate_ksps * 1e3
     s_hz = chirp.slope_mhz_per_us * 1e12
     f0 = chirp.start_freq_ghz * 1e9
-    t_n = chirp.adc_start_time_us * 1e-6 + np.arange(N) / fs                   # (N,)
-    t_c = (np.arange(L * T) * tc + frame_index * chirp.frame_period_ms * 1e-3)  # (C,)
-    pos = layout.virtual_positions(geom.tx_order, geom.rx).reshape(T, R, 2)     # slot, rx, (x, z)
+    t_n = chirp.adc_start_time_us * 1e-6 + np.arange(N) / fs  # (N,)
+    t_c = np.arange(L * T) * tc + frame_index * chirp.frame_period_ms * 1e-3  # (C,)
+    pos = layout.virtual_positions(geom.tx_order, geom.rx).reshape(T, R, 2)  # slot, rx, (x, z)
     cube = np.zeros((L * T, R, N), dtype=np.complex128)
-    freq_n = 2.0 * (f0 + s_hz * t_n) / C                                        # cycles per metre
+    freq_n = 2.0 * (f0 + s_hz * t_n) / C  # cycles per metre
     for tg in targets:
         az, el = math.radians(tg.azimuth_deg), math.radians(tg.elevation_deg)
         ux, uz = math.sin(az) * math.cos(el), math.sin(el)
         amp = noise_lsb * 10 ** (tg.snr_db / 20.0)
-        r_c = tg.range_m + tg.velocity_mps * t_c                                 # (C,)
+        r_c = tg.range_m + tg.velocity_mps * t_c  # (C,)
         slot = np.arange(L * T) % T
-        ang = -0.5 * (pos[..., 0] * ux + pos[..., 1] * uz)                        # (T, R) cycles
+        ang = -0.5 * (pos[..., 0] * ux + pos[..., 1] * uz)  # (T, R) cycles
         cycles = r_c[:, None, None] * freq_n[None, None, :] + ang[slot][:, :, None]
         cycles -= np.floor(cycles)
         cube += amp * np.exp(2j * np.pi * cycles)
@@ -84,13 +94,24 @@ def synth_cube(chirp, geom: FrameGeometry, targets: list[Target], layout: Antenn
         sigma = noise_lsb / math.sqrt(2.0)
         cube += sigma * (rng.standard_normal(cube.shape) + 1j * rng.standard_normal(cube.shape))
     if quantise:
-        cube = np.clip(np.rint(cube.real), -32768, 32767) + 1j * np.clip(np.rint(cube.imag), -32768, 32767)
+        cube = np.clip(np.rint(cube.real), -32768, 32767) + 1j * np.clip(
+            np.rint(cube.imag), -32768, 32767
+        )
     return cube.reshape(L, T * R, N).astype(np.complex64)
 
 
-def synth_raw_frames(chirp, geom: FrameGeometry, targets: list[Target], num_frames: int,
-                     layout: AntennaLayout = AWR2243BOOST, noise_lsb: float = 4.0, seed: int = 0) -> bytes:
+def synth_raw_frames(
+    chirp,
+    geom: FrameGeometry,
+    targets: list[Target],
+    num_frames: int,
+    layout: AntennaLayout = AWR2243BOOST,
+    noise_lsb: float = 4.0,
+    seed: int = 0,
+) -> bytes:
     """`num_frames` consecutive raw frames in the geometry's LVDS layout (as a DCA1000 capture)."""
     rng = np.random.default_rng(seed)
-    return b"".join(cube_to_raw(synth_cube(chirp, geom, targets, layout, noise_lsb, i, rng), geom)
-                    for i in range(num_frames))
+    return b"".join(
+        cube_to_raw(synth_cube(chirp, geom, targets, layout, noise_lsb, i, rng), geom)
+        for i in range(num_frames)
+    )

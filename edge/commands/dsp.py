@@ -15,15 +15,28 @@ log = logging.getLogger(__name__)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cfg", required=True, help="the radar .cfg the capture was recorded with")
-    p.add_argument("--adc", required=True, nargs="+", help="raw capture file(s), in order (_Raw_0.bin _Raw_1.bin ...)")
+    p.add_argument(
+        "--adc",
+        required=True,
+        nargs="+",
+        help="raw capture file(s), in order (_Raw_0.bin _Raw_1.bin ...)",
+    )
     p.add_argument("--json", help="write {frames, points_per_frame, points} here")
-    p.add_argument("--lanes", choices=("4", "2"), default="4",
-                   help="LVDS layout: 4 = interleaved AR1243/AWR2243 (default), 2 = xWR16xx/18xx/68xx")
-    p.add_argument("--antenna", default="awr2243boost", help="antenna layout name (drivers/dca1000/antenna.py)")
+    p.add_argument(
+        "--lanes",
+        choices=("4", "2"),
+        default="4",
+        help="LVDS layout: 4 = interleaved AR1243/AWR2243 (default), 2 = xWR16xx/18xx/68xx",
+    )
+    p.add_argument(
+        "--antenna", default="awr2243boost", help="antenna layout name (drivers/dca1000/antenna.py)"
+    )
     p.add_argument("--mirror-x", action="store_true", help="mirror the antenna layout in x")
     p.add_argument("--cfar", choices=("ca", "os"), default="ca", help="CFAR noise estimator")
     p.add_argument("--threshold-db", type=float, help="override the cfg's CFAR threshold (dB)")
-    p.add_argument("--clutter-removal", choices=("on", "off"), help="override the cfg's clutterRemoval")
+    p.add_argument(
+        "--clutter-removal", choices=("on", "off"), help="override the cfg's clutterRemoval"
+    )
     p.add_argument("--max-frames", type=int, help="process at most this many frames")
 
 
@@ -39,7 +52,9 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_cfg(args.cfg)
     if args.antenna.lower() not in LAYOUTS:
-        raise ConfigError(f"unknown antenna layout {args.antenna!r}; known: {', '.join(sorted(LAYOUTS))}")
+        raise ConfigError(
+            f"unknown antenna layout {args.antenna!r}; known: {', '.join(sorted(LAYOUTS))}"
+        )
     antenna = LAYOUTS[args.antenna.lower()]
     if args.mirror_x:
         antenna = antenna.mirror_x()
@@ -59,13 +74,18 @@ def run(args: argparse.Namespace) -> int:
         points.append(np.round(pts.astype(np.float64), 4).tolist())
     dt = time.perf_counter() - t0
     counts = [len(p) for p in points]
-    log.info("%d frames in %.2f s (%.1f ms/frame), %d points", n, dt, 1e3 * dt / max(n, 1), sum(counts))
+    log.info(
+        "%d frames in %.2f s (%.1f ms/frame), %d points", n, dt, 1e3 * dt / max(n, 1), sum(counts)
+    )
     if args.json:
         out = Path(args.json)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps({"frames": n, "points_per_frame": counts, "points": points}))
-    print(f"{n} frames, {sum(counts)} points (median {int(np.median(counts)) if counts else 0} per frame)"
-          + (f" -> {args.json}" if args.json else ""))
+    median = int(np.median(counts)) if counts else 0
+    print(
+        f"{n} frames, {sum(counts)} points (median {median} per frame)"
+        + (f" -> {args.json}" if args.json else "")
+    )
     return 0
 
 

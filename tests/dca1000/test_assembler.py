@@ -13,14 +13,18 @@ P = 1456
 
 
 def _stream(num_frames: int, frame_bytes: int, seed: int = 0) -> bytes:
-    return np.random.default_rng(seed).integers(0, 256, num_frames * frame_bytes, dtype=np.uint8).tobytes()
+    return (
+        np.random.default_rng(seed)
+        .integers(0, 256, num_frames * frame_bytes, dtype=np.uint8)
+        .tobytes()
+    )
 
 
 def _packets(data: bytes, pad: bool = True) -> list[tuple[int, int, bytes]]:
     """(seq, byte count, payload) like the FPGA: seq from 1, last packet zero-padded."""
     out = []
     for i in range(-(-len(data) // P)):
-        chunk = data[i * P:(i + 1) * P]
+        chunk = data[i * P : (i + 1) * P]
         if pad:
             chunk = chunk + bytes(P - len(chunk))
         out.append((i + 1, i * P, chunk))
@@ -44,7 +48,7 @@ def _affected(lost_idx, frame_bytes: int, total: int) -> set[int]:
 
 def _check(frames, data: bytes, F: int, flagged_expected: set[int]) -> None:
     for f in frames:
-        ref = np.frombuffer(data[f.index * F:(f.index + 1) * F], dtype=np.uint8)
+        ref = np.frombuffer(data[f.index * F : (f.index + 1) * F], dtype=np.uint8)
         if f.complete:
             assert f.index not in flagged_expected
             assert np.array_equal(f.data, ref), f"frame {f.index} differs"
@@ -57,7 +61,9 @@ def _check(frames, data: bytes, F: int, flagged_expected: set[int]) -> None:
     assert {f.index for f in frames if not f.complete} == flagged_expected
 
 
-@pytest.mark.parametrize("F", [5000, 4 * P, 100_000])  # boundary inside packets, aligned, multi-packet
+@pytest.mark.parametrize(
+    "F", [5000, 4 * P, 100_000]
+)  # boundary inside packets, aligned, multi-packet
 def test_in_order_stream_is_exact(F):
     data = _stream(7, F)
     asm = FrameAssembler(F, num_frames=7)
@@ -72,7 +78,9 @@ def test_loss_flags_exactly_the_affected_frames_and_zero_fills():
     data = _stream(20, F, seed=1)
     pk = _packets(data)
     lost = {3, 4, 30, 68}  # 3 and 4 straddle frame boundaries
-    frames = _run(asm := FrameAssembler(F, num_frames=20), [p for i, p in enumerate(pk) if i not in lost])
+    frames = _run(
+        asm := FrameAssembler(F, num_frames=20), [p for i, p in enumerate(pk) if i not in lost]
+    )
     expected = _affected(lost, F, len(data))
     _check(frames, data, F, expected)
     assert [f.index for f in frames] == list(range(20))
@@ -87,7 +95,7 @@ def test_reordering_within_the_window_is_exact():
     rng = np.random.default_rng(3)
     order = np.arange(len(pk))
     for start in range(0, len(order) - 8, 8):
-        rng.shuffle(order[start:start + 8])
+        rng.shuffle(order[start : start + 8])
     asm = FrameAssembler(F, num_frames=12)
     frames = _run(asm, [pk[i] for i in order])
     _check(frames, data, F, set())
@@ -102,7 +110,7 @@ def test_duplicates_are_ignored():
     frames = _run(asm, pk[:6] + [pk[4], pk[5]] + pk[6:] + [pk[1]])
     _check(frames, data, F, set())
     assert asm.stats.duplicates == 2  # pk[4], pk[5]: frame 1 still open
-    assert asm.stats.late == 1        # pk[1]: frame 0 already emitted
+    assert asm.stats.late == 1  # pk[1]: frame 0 already emitted
 
 
 def test_contradicting_byte_count_is_dropped_without_shifting_later_frames():
@@ -111,8 +119,8 @@ def test_contradicting_byte_count_is_dropped_without_shifting_later_frames():
     pk = _packets(data)
     bad = list(pk)
     seq, bc, payload = bad[10]
-    bad[10] = (seq, bc + 700, payload)          # impossible byte count for its sequence number
-    bad[20] = (bad[20][0], bad[20][1], b"")      # empty payload
+    bad[10] = (seq, bc + 700, payload)  # impossible byte count for its sequence number
+    bad[20] = (bad[20][0], bad[20][1], b"")  # empty payload
     bad[25] = (bad[25][0], bad[25][1], bytes(2000))  # longer than any DCA1000 payload
     asm = FrameAssembler(F, num_frames=10)
     frames = _run(asm, bad)
@@ -184,24 +192,31 @@ def test_late_packet_after_give_up_is_counted():
 
 
 @settings(max_examples=40, deadline=None)
-@given(loss=st.sets(st.integers(0, 68), max_size=8), seed=st.integers(0, 1000),
-       F=st.sampled_from([1000, 4999, 2 * P, 7000]))
+@given(
+    loss=st.sets(st.integers(0, 68), max_size=8),
+    seed=st.integers(0, 1000),
+    F=st.sampled_from([1000, 4999, 2 * P, 7000]),
+)
 def test_property_loss_and_local_reorder(loss, seed, F):
     data = _stream(-(-69 * P // F), F, seed=seed)
     pk = _packets(data)
     rng = np.random.default_rng(seed)
     order = np.arange(len(pk))
     for start in range(0, len(order) - 4, 4):
-        rng.shuffle(order[start:start + 4])
+        rng.shuffle(order[start : start + 4])
     kept = [pk[i] for i in order if i not in loss]
     frames = _run(FrameAssembler(F, num_frames=len(data) // F), kept)
     expected = _affected({i for i in loss if i < len(pk)}, F, len(data))
-    lost_whole = {k for k in expected if all(i in loss for i in range(k * F // P, ((k + 1) * F - 1) // P + 1))}
+    lost_whole = {
+        k for k in expected if all(i in loss for i in range(k * F // P, ((k + 1) * F - 1) // P + 1))
+    }
     _check(frames, data, F, expected - lost_whole)
 
 
 @settings(max_examples=25, deadline=None)
-@given(loss=st.sets(st.integers(0, 68), max_size=5), batch=st.integers(1, 70), seed=st.integers(0, 100))
+@given(
+    loss=st.sets(st.integers(0, 68), max_size=5), batch=st.integers(1, 70), seed=st.integers(0, 100)
+)
 def test_batches_match_packet_by_packet(loss, batch, seed):
     """add_batch (contiguous fast path or fallback) == add, packet by packet."""
     F = 4999
@@ -212,15 +227,22 @@ def test_batches_match_packet_by_packet(loss, batch, seed):
     a2 = FrameAssembler(F, num_frames=len(data) // F)
     got = []
     for j in range(0, len(pk), batch):
-        chunk = pk[j:j + batch]
+        chunk = pk[j : j + batch]
         buf = np.zeros(len(chunk) * P, dtype=np.uint8)
         for i, (_, _, payload) in enumerate(chunk):
-            buf[i * P:i * P + len(payload)] = np.frombuffer(payload, dtype=np.uint8)
-        got += a2.add_batch(np.array([c[0] for c in chunk]), np.array([c[1] for c in chunk]),
-                            np.array([len(c[2]) for c in chunk]), buf, P)
+            buf[i * P : i * P + len(payload)] = np.frombuffer(payload, dtype=np.uint8)
+        got += a2.add_batch(
+            np.array([c[0] for c in chunk]),
+            np.array([c[1] for c in chunk]),
+            np.array([len(c[2]) for c in chunk]),
+            buf,
+            P,
+        )
     got += a2.flush()
-    assert [(f.index, f.complete, f.missing_bytes) for f in got] == [(f.index, f.complete, f.missing_bytes) for f in ref]
-    assert all(np.array_equal(a.data, b.data) for a, b in zip(got, ref))
+    assert [(f.index, f.complete, f.missing_bytes) for f in got] == [
+        (f.index, f.complete, f.missing_bytes) for f in ref
+    ]
+    assert all(np.array_equal(a.data, b.data) for a, b in zip(got, ref, strict=True))
     assert a1.stats.as_dict() == a2.stats.as_dict()
 
 
@@ -231,8 +253,9 @@ def test_duplicate_after_fast_path_is_still_detected():
     asm = FrameAssembler(F, num_frames=3)
     frames = asm.add(*pk[0])
     buf = np.frombuffer(b"".join(p[2] for p in pk[1:6]), dtype=np.uint8)
-    frames += asm.add_batch(np.array([p[0] for p in pk[1:6]]), np.array([p[1] for p in pk[1:6]]),
-                            np.full(5, P), buf, P)
+    frames += asm.add_batch(
+        np.array([p[0] for p in pk[1:6]]), np.array([p[1] for p in pk[1:6]]), np.full(5, P), buf, P
+    )
     frames += asm.add(*pk[5])  # duplicate of a packet that came in the batch (frame 1 still open)
     for p in pk[6:]:
         frames += asm.add(*p)

@@ -37,7 +37,7 @@ def test_dsp_command_writes_points_per_frame(tmp_path, radar_cfg, capsys):
         pts = np.asarray(frame)
         assert pts.shape == (2, 5)
         right = pts[np.argmax(pts[:, 0])]
-        assert right[0] > 0 and right[3] > 0          # the receding target on the right
+        assert right[0] > 0 and right[3] > 0  # the receding target on the right
         assert abs(np.linalg.norm(right[:3]) - 18.0) < 1.0
     assert "3 frames" in capsys.readouterr().out
 
@@ -61,6 +61,10 @@ def test_bench_quick_smoke():
     out = run(quick=True)
     assert all(isinstance(v, (int, float)) for v in out.values())
     assert out["dsp_frame_ms_median"] > 0 and out["dsp_points"] == out["dsp_targets"]
-    assert out["dsp_doppler_bins"] == 128 and out["dsp_virtual_channels"] == 12 and out["dsp_samples"] == 256
+    assert (
+        out["dsp_doppler_bins"] == 128
+        and out["dsp_virtual_channels"] == 12
+        and out["dsp_samples"] == 256
+    )
     assert out["loopback_frames"] == out["loopback_frames_sent"] == out["loopback_frames_exact"]
     assert out["loopback_mb_per_s"] > 0

@@ -35,8 +35,12 @@ def test_setup_sequence_reaches_the_fpga():
     with _fake(version=FpgaVersion(2, 9, False)) as fake, _client(fake) as ctl:
         version = ctl.setup(FpgaConfig(), PacketConfig(1470, 25.0))
         assert version == FpgaVersion(2, 9, False)
-        assert [c for c, _ in fake.commands] == [Cmd.SYSTEM_CONNECT, Cmd.READ_FPGA_VERSION,
-                                                  Cmd.CONFIG_FPGA_GEN, Cmd.CONFIG_PACKET_DATA]
+        assert [c for c, _ in fake.commands] == [
+            Cmd.SYSTEM_CONNECT,
+            Cmd.READ_FPGA_VERSION,
+            Cmd.CONFIG_FPGA_GEN,
+            Cmd.CONFIG_PACKET_DATA,
+        ]
         assert fake.fpga_config.lvds_mode is LvdsMode.FOUR_LANE
         assert fake.commands[2][1] == bytes.fromhex("01010102031e")
         assert fake.packet_config == PacketConfig(1470, 25.0)
@@ -67,8 +71,9 @@ def test_lost_answer_is_retried():
 def test_silent_device_times_out():
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as dead:
         dead.bind(("127.0.0.1", 0))  # bound but never answers
-        with Dca1000Control("127.0.0.1", dead.getsockname()[1], local=("127.0.0.1", 0),
-                            timeout_s=0.1, retries=1) as ctl:
+        with Dca1000Control(
+            "127.0.0.1", dead.getsockname()[1], local=("127.0.0.1", 0), timeout_s=0.1, retries=1
+        ) as ctl:
             t0 = time.monotonic()
             with pytest.raises(DeviceTimeout, match="SYSTEM_CONNECT.*2 attempts"):
                 ctl.connect()
@@ -79,7 +84,9 @@ def test_silent_device_times_out():
 def test_async_report_and_stale_answer_are_skipped():
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as dev:
         dev.bind(("127.0.0.1", 0))
-        with Dca1000Control("127.0.0.1", dev.getsockname()[1], local=("127.0.0.1", 0), timeout_s=1.0) as ctl:
+        with Dca1000Control(
+            "127.0.0.1", dev.getsockname()[1], local=("127.0.0.1", 0), timeout_s=1.0
+        ) as ctl:
             host = ("127.0.0.1", ctl._sock.getsockname()[1])
             # before the command: an async "LVDS buffer full" and a stale answer to something else
             dev.sendto(ResponsePacket(Cmd.SYSTEM_ERROR, 9).to_bytes(), host)

@@ -28,8 +28,8 @@ def _match(points: np.ndarray, t: Target, chirp) -> tuple[float, float, float, f
 
 TARGETS = [
     Target(8.0, 0.0, 0.0, 0.0, 0.0),
-    Target(15.3, 18.5, 30.0, 0.0, 0.0),        # fast, receding, right
-    Target(27.1, -19.2, -40.0, 8.0, 0.0),      # fast, approaching, left, up
+    Target(15.3, 18.5, 30.0, 0.0, 0.0),  # fast, receding, right
+    Target(27.1, -19.2, -40.0, 8.0, 0.0),  # fast, approaching, left, up
     Target(44.4, 7.7, 55.0, -6.0, 0.0),
     Target(70.2, -3.3, -12.0, 0.0, 5.0),
     Target(33.3, 12.0, 10.0, 0.0, -5.0),
@@ -40,7 +40,9 @@ TARGETS = [
 def test_targets_recovered_within_one_bin_and_two_degrees(radar_cfg, cfar):
     geom, dsp = make_dsp(radar_cfg, cfar=cfar)
     for seed in (0, 1):
-        pts = dsp.process(synth_cube(radar_cfg.chirp, geom, TARGETS, rng=np.random.default_rng(seed))).points
+        pts = dsp.process(
+            synth_cube(radar_cfg.chirp, geom, TARGETS, rng=np.random.default_rng(seed))
+        ).points
         assert len(pts) == len(TARGETS), pts
         for t in TARGETS:
             dr, dv, daz, del_ = _match(pts, t, radar_cfg.chirp)
@@ -77,9 +79,11 @@ def test_virtual_channel_order_is_tx0_rx0_to_rx3_then_next_tx(dsp_setup):
     cube = synth_cube(cfg.chirp, geom, [t])
     ok = _match(dsp.process(cube).points, t, cfg.chirp)
     assert ok[2] < 1.0 and ok[3] < 1.0
-    for order in ([4, 5, 6, 7, 0, 1, 2, 3, 8, 9, 10, 11],    # TX1's block first
-                  [8, 9, 10, 11, 4, 5, 6, 7, 0, 1, 2, 3],    # TX2's block first
-                  [3, 2, 1, 0, 7, 6, 5, 4, 11, 10, 9, 8]):   # RX3..RX0 within each TX
+    for order in (
+        [4, 5, 6, 7, 0, 1, 2, 3, 8, 9, 10, 11],  # TX1's block first
+        [8, 9, 10, 11, 4, 5, 6, 7, 0, 1, 2, 3],  # TX2's block first
+        [3, 2, 1, 0, 7, 6, 5, 4, 11, 10, 9, 8],
+    ):  # RX3..RX0 within each TX
         pts = dsp.process(cube[:, order, :]).points
         assert len(pts) == 0 or max(_match(pts, t, cfg.chirp)[2:]) > 5.0, order
 
@@ -136,7 +140,12 @@ def test_clutter_removal_drops_static_targets(radar_cfg):
 def test_noise_alone_gives_almost_no_points(dsp_setup):
     cfg, geom, dsp = dsp_setup
     for seed in range(3):
-        assert len(dsp.process(synth_cube(cfg.chirp, geom, [], rng=np.random.default_rng(seed))).points) <= 2
+        assert (
+            len(
+                dsp.process(synth_cube(cfg.chirp, geom, [], rng=np.random.default_rng(seed))).points
+            )
+            <= 2
+        )
 
 
 def test_config_from_cfg(radar_cfg):
@@ -155,10 +164,14 @@ def test_range_bias_and_channel_phase_calibration(radar_cfg):
     err[4:8] = np.exp(1j * 0.8)
     bad = cube * err[None, :, None]
     cal = " ".join(f"{z.real:.5f} {z.imag:.5f}" for z in np.conj(err))
-    text = "\n".join(line for line in open(radar_cfg.path).read().splitlines() if not line.startswith("sensorStart"))
+    text = "\n".join(
+        line
+        for line in open(radar_cfg.path).read().splitlines()
+        if not line.startswith("sensorStart")
+    )
     cfg2 = parse_cfg(text + f"\ncompRangeBiasAndRxChanPhase 0.0 {cal}\n", "<cal>")
     _, dsp2 = make_dsp(cfg2)
-    assert _match(dsp.process(bad).points, t, radar_cfg.chirp)[3] > 5.0      # elevation is off
+    assert _match(dsp.process(bad).points, t, radar_cfg.chirp)[3] > 5.0  # elevation is off
     assert _match(dsp2.process(bad).points, t, radar_cfg.chirp)[3] <= 2.0
 
 

@@ -5,12 +5,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.dca1000.layout import FrameGeometry, RawLayout, cube_to_raw, disabled_lane_energy, raw_to_cube
+from drivers.dca1000.layout import (
+    FrameGeometry,
+    RawLayout,
+    cube_to_raw,
+    disabled_lane_energy,
+    raw_to_cube,
+)
 from mmatch.errors import ConfigError, ParseError
 
 
 def test_four_lane_interleaving_by_hand():
-    g = FrameGeometry(RawLayout.FOUR_LANE, num_loops=1, tx_order=(0,), rx=(0, 1, 2, 3), num_samples=2)
+    g = FrameGeometry(
+        RawLayout.FOUR_LANE, num_loops=1, tx_order=(0,), rx=(0, 1, 2, 3), num_samples=2
+    )
     # sample 0: I(RX0..3) = 1 2 3 4, Q(RX0..3) = 5 6 7 8; sample 1: 11..14, 15..18
     raw = np.array([1, 2, 3, 4, 5, 6, 7, 8, 11, 12, 13, 14, 15, 16, 17, 18], dtype="<i2").tobytes()
     cube = raw_to_cube(raw, g)
@@ -48,10 +56,10 @@ def test_virtual_channel_order_follows_the_chirp_tx_order():
         for r in range(4):
             s[c, :, 0, r] = c + 1 + 100 * r
     cube = raw_to_cube(s.tobytes(), g)
-    for l in range(L):
+    for loop in range(L):
         for slot in range(T):
             for r in range(4):
-                assert cube[l, slot * 4 + r, 0].real == l * T + slot + 1 + 100 * r
+                assert cube[loop, slot * 4 + r, 0].real == loop * T + slot + 1 + 100 * r
 
 
 @pytest.mark.parametrize("layout", list(RawLayout))
@@ -59,7 +67,9 @@ def test_virtual_channel_order_follows_the_chirp_tx_order():
 def test_roundtrip_random(layout, rx):
     g = FrameGeometry(layout, 4, (0, 1, 2), rx, 16)
     rng = np.random.default_rng(1)
-    cube = (rng.integers(-3000, 3000, (4, 3 * len(rx), 16)) + 1j * rng.integers(-3000, 3000, (4, 3 * len(rx), 16)))
+    cube = rng.integers(-3000, 3000, (4, 3 * len(rx), 16)) + 1j * rng.integers(
+        -3000, 3000, (4, 3 * len(rx), 16)
+    )
     raw = cube_to_raw(cube, g)
     assert len(raw) == g.frame_bytes
     np.testing.assert_array_equal(raw_to_cube(raw, g), cube.astype(np.complex64))

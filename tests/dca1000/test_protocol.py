@@ -22,7 +22,9 @@ def test_awr2243_fpga_config_bytes_match_ti():
     pkt = CommandPacket(Cmd.CONFIG_FPGA_GEN, FpgaConfig().to_bytes()).to_bytes()
     assert pkt == bytes.fromhex("5aa5 0300 0600 01 01 01 02 03 1e aaee")
     two_lane = FpgaConfig.from_bytes(bytes.fromhex("01020102031e"))
-    assert two_lane.lvds_mode is LvdsMode.TWO_LANE and two_lane.to_bytes() == bytes.fromhex("01020102031e")
+    assert two_lane.lvds_mode is LvdsMode.TWO_LANE and two_lane.to_bytes() == bytes.fromhex(
+        "01020102031e"
+    )
 
 
 def test_packet_config_matches_openradar_bytes():

@@ -14,24 +14,28 @@ G = FrameGeometry(RawLayout.FOUR_LANE, 4, (0, 1), (0, 1, 2, 3), 32)
 
 def _frames(n: int, g: FrameGeometry = G) -> bytes:
     rng = np.random.default_rng(0)
-    return b"".join(cube_to_raw(rng.integers(-100, 100, (g.num_loops, g.num_virtual, g.num_samples)) + 0j, g)
-                    for _ in range(n))
+    return b"".join(
+        cube_to_raw(rng.integers(-100, 100, (g.num_loops, g.num_virtual, g.num_samples)) + 0j, g)
+        for _ in range(n)
+    )
 
 
 def test_whole_frames_and_split_files(tmp_path):
     data = _frames(5)
     (tmp_path / "a_Raw_0.bin").write_bytes(data[: 2 * G.frame_bytes + 100])
-    (tmp_path / "a_Raw_1.bin").write_bytes(data[2 * G.frame_bytes + 100:])
+    (tmp_path / "a_Raw_1.bin").write_bytes(data[2 * G.frame_bytes + 100 :])
     cap = RawCapture([tmp_path / "a_Raw_0.bin", tmp_path / "a_Raw_1.bin"], G)
     assert len(cap) == 5
     for k, f in enumerate(cap):
-        assert f.tobytes() == data[k * G.frame_bytes:(k + 1) * G.frame_bytes]
+        assert f.tobytes() == data[k * G.frame_bytes : (k + 1) * G.frame_bytes]
 
 
 def test_partial_frame_is_refused_with_the_sizes(tmp_path):
     p = tmp_path / "x.bin"
     p.write_bytes(_frames(3) + b"\x01" * 10)
-    with pytest.raises(ParseError, match=r"not a whole number of 4096-byte frames \(3 frames \+ 10 bytes\)"):
+    with pytest.raises(
+        ParseError, match=r"not a whole number of 4096-byte frames \(3 frames \+ 10 bytes\)"
+    ):
         RawCapture(p, G)
 
 
