@@ -35,6 +35,10 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 POLICIES = ("skip", "log", "raise")
+DATA_BAUD = 921600
+NO_FRAME_HINT_BYTES = 65536
+"""After this many bytes without a single frame the reader logs a wrong-port/baud hint once
+(a data port left at 115200, or the CLI port, shows up as bytes without magic words)."""
 
 
 @dataclass
@@ -99,6 +103,7 @@ class TlvReader:
         self._pending: deque[TiPacket] = deque()
         self._carry: list[TiPacket] = []  # accepted before a "raise" policy error
         self._finished = False
+        self._hinted = False
 
     # ---- push interface ----------------------------------------------------------------
     def feed(self, data: bytes) -> list[TiPacket]:
@@ -202,6 +207,10 @@ class TlvReader:
                     self._carry = out
                 self._reject(offset, res.reason, res.detail)
         self._save(buf, pos, search)
+        if not self._hinted and st.frames == 0 and st.bytes_skipped >= NO_FRAME_HINT_BYTES:
+            self._hinted = True
+            log.warning("%d bytes and no frame: is this the data port (not the CLI port), at %d "
+                        "baud, with a demo firmware that outputs TLVs?", st.bytes_skipped, DATA_BAUD)
         return out
 
     def _save(self, buf: bytes, pos: int, search: int) -> None:

@@ -162,3 +162,14 @@ def test_subframes_share_a_frame_number_without_restart():
     packets, st = read_all(data)
     assert [(p.header.frame_number, p.header.sub_frame_number) for p in packets] == seq
     assert st.restarts == 1 and st.frame_gaps == 1
+
+
+def test_wrong_port_or_baud_hint_logged_once(caplog):
+    rng = np.random.default_rng(0)
+    junk = rng.integers(0, 256, 200_000, dtype=np.uint8).tobytes()
+    r = TlvReader(on_error="skip")
+    with caplog.at_level(logging.WARNING, logger="drivers.ti.reader"):
+        for k in range(0, len(junk), 10_000):
+            r.feed(junk[k:k + 10_000])
+    hints = [rec for rec in caplog.records if "baud" in rec.getMessage()]
+    assert len(hints) == 1 and "921600" in hints[0].getMessage()
