@@ -174,7 +174,8 @@ class VehicleLoop:
             height = getattr(radar, "radar_height", cfg.radar.height_m)
             recorder.set_metadata("camera", logschema.camera_to_meta(camera.camera, height))
         if recorder is not None and cfg.log.raw:
-            radar.raw_sink = lambda data: recorder.write(logschema.RAW_UART, data)
+            topic = radar.raw_topic
+            radar.raw_sink = lambda data: recorder.write(topic, data)
 
     def _on_result(self, msg: dict) -> None:
         if msg["status"] == "fused":

@@ -49,6 +49,8 @@ class RadarSource(_Source):
 
     #: set by the loop: receives raw bytes (UART) or raw frames (DCA1000) for the log
     raw_sink: Callable[[bytes], None] | None = None
+    #: the log topic of the raw data
+    raw_topic: str = "/raw/uart"
 
     @abc.abstractmethod
     def read(self, timeout: float) -> RadarFrame | None:
