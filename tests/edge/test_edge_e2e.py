@@ -35,6 +35,7 @@ class Watcher:
     def __init__(self) -> None:
         self.fused: list[tuple[float, dict]] = []
         self.shared: list[float] = []
+        self.health: list[dict] = []
         self.lock = threading.Lock()
 
     def on_fused(self, vehicle: str, payload: bytes) -> None:
@@ -46,6 +47,10 @@ class Watcher:
         t = time.time()
         with self.lock:
             self.shared.append(t)
+
+    def on_health(self, vehicle: str, payload: bytes) -> None:
+        with self.lock:
+            self.health.append(json.loads(payload))
 
     def fused_since(self, t0: float) -> list[tuple[float, dict]]:
         with self.lock:
@@ -71,6 +76,7 @@ def live(tmp_path_factory):
             assert wait_for(lambda: obs.wait_for_peers(0.05), 30), "watcher never reached the Ego"
             obs.subscribe(keys.fused("ego1"), "fused", w.on_fused)
             obs.subscribe(keys.shared("cav1"), "shared", w.on_shared)
+            obs.subscribe(keys.health("ego1"), "health", w.on_health)
             cav = start(["run", "-c", str(cav_cfgs[0])], tmp / "cav1.out")
             procs.append(cav)
             assert wait_for(lambda: any(m["cavs"] for _, m in w.fused_since(0)), 40), \
@@ -119,6 +125,9 @@ def test_ego_fuses_95_percent_of_its_frames_within_50ms(live):
     m = good[0]
     assert m["cavs"][0]["id"] == "cav1" and abs(m["cavs"][0]["dt"]) <= 0.06
     assert m["status"] in ("fused", "no-estimate") and m["links"] == {"cav1": "up"}
+    # health summaries on mmatch/v1/ego1/health: rates and drops
+    h = live["watcher"].health
+    assert h and any(x["rates"]["frames"] > 15 for x in h) and "radar_queue" in h[-1]["drops"]
 
 
 def test_cav_loss_is_flagged_and_fusion_returns_within_1s(live):
