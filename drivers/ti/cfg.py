@@ -223,6 +223,16 @@ def _tokenize(text: str, source: str) -> tuple[tuple[int, str, tuple[str, ...]],
     return tuple(out)
 
 
+def check_command(line: str, source: str = "<cli>", lineno: int = 1) -> tuple[str, tuple[str, ...]]:
+    """(command, args) of one CLI line; `ConfigError` for an unknown command or a wrong
+    argument count (what the firmware itself refuses line by line)."""
+    parsed = _tokenize(line, source)
+    if not parsed:
+        raise ConfigError(f"{source}:{lineno}: empty or comment line")
+    _, cmd, args = parsed[0]
+    return cmd, args
+
+
 def _in_band(freq_ghz: float) -> tuple[float, float] | None:
     for lo, hi in _BANDS_GHZ:
         if lo - _BAND_MARGIN_GHZ <= freq_ghz <= hi + _BAND_MARGIN_GHZ:
