@@ -34,4 +34,7 @@ Public API (import from the submodules; this package imports nothing heavy):
     drivers.ti.cfg.parse_cfg/load_cfg     .cfg -> RadarCfg(ChirpParams) (shared contract).
     drivers.ti.config_sender.send_cfg(port, cfg_or_path)  line-by-line CLI configuration
         (also importable as drivers.ti.cli.send_cfg).
+    drivers.ti.simulator.SimulatedRadar(points_fn, fmt="sdk3", speed=1.0)
+        A TI EVM without hardware: `cli_port` and `data_port` ptys; after the cfg's
+        sensorStart it streams encode_frame(points_fn(frame_number)) every frame period.
 """

@@ -203,9 +203,14 @@ def test_radar_config_data_port_silent_or_wrong_baud():
     tty.setraw(slave)
     stop = threading.Event()
 
+    os.set_blocking(master, False)
+
     def garble():  # what a 921600-baud stream looks like read at the wrong rate
         while not stop.is_set():
-            os.write(master, bytes(range(1, 200)))
+            try:
+                os.write(master, bytes(range(1, 200)))
+            except BlockingIOError:
+                pass
             time.sleep(0.01)
 
     t = threading.Thread(target=garble, daemon=True)
