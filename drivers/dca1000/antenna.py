@@ -7,8 +7,9 @@ relative to the origin (the synthesiser and the DSP both use this model).
 
 AWR2243BOOST (same array as AWR1843BOOST): RX0-RX3 on a line at x = 0..3; TX0 at x = 0,
 TX2 at x = 4 (together an 8-element azimuth array), TX1 at x = 2, raised by lambda/2 (z = 1),
-which gives 4 elevation channels. The direction of x along the RX line is the one TI's demo
-assumes; check it once with a corner reflector on the real board (`mirror_x` flips it).
+which gives 4 elevation channels. xWR16xxBOOST: TX0 at x = 0, TX1 at x = 4, no elevation.
+The direction of x along the RX line (RX0 leftmost, seen from behind the radar) is an
+assumption: check it once with a corner reflector on the real board (`mirror_x` flips it).
 """
 
 from __future__ import annotations
@@ -52,7 +53,15 @@ AWR2243BOOST = AntennaLayout(
     rx=((0.0, 0.0), (1.0, 0.0), (2.0, 0.0), (3.0, 0.0)),
 )
 
+XWR16XXBOOST = AntennaLayout(
+    name="xWR16xxBOOST",
+    tx=((0.0, 0.0), (4.0, 0.0)),
+    rx=((0.0, 0.0), (1.0, 0.0), (2.0, 0.0), (3.0, 0.0)),
+)
+"""IWR/AWR1642BOOST: two TX 2 lambda apart -> 8-element azimuth array, no elevation."""
+
 LAYOUTS: dict[str, AntennaLayout] = {
     "awr2243boost": AWR2243BOOST,
     "awr1843boost": AntennaLayout("AWR1843BOOST", AWR2243BOOST.tx, AWR2243BOOST.rx),
+    "xwr16xxboost": XWR16XXBOOST,
 }

@@ -161,6 +161,12 @@ def bench_loopback(frames: int, timeout_s: float = 20.0) -> dict:
 
 def run(quick: bool = False) -> dict:
     """Flat dict of numbers: DSP ms per frame and loopback MB/s (quick: fewer frames)."""
-    out = bench_dsp(10 if quick else 100)
+    try:  # one core: also keep BLAS (the small per-point matrix products) single-threaded
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - comes with scikit-learn
+        out = bench_dsp(10 if quick else 100)
+    else:
+        with threadpool_limits(limits=1):
+            out = bench_dsp(10 if quick else 100)
     out.update(bench_loopback(8 if quick else 64))
     return out

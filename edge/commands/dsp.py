@@ -29,7 +29,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="LVDS layout: 4 = interleaved AR1243/AWR2243 (default), 2 = xWR16xx/18xx/68xx",
     )
     p.add_argument(
-        "--antenna", default="awr2243boost", help="antenna layout name (drivers/dca1000/antenna.py)"
+        "--antenna",
+        default="awr2243boost",
+        choices=("awr2243boost", "awr1843boost", "xwr16xxboost"),
+        help="antenna layout (drivers/dca1000/antenna.py)",
     )
     p.add_argument("--mirror-x", action="store_true", help="mirror the antenna layout in x")
     p.add_argument("--cfar", choices=("ca", "os"), default="ca", help="CFAR noise estimator")

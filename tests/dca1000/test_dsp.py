@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -215,3 +216,51 @@ def test_cube_shape_mismatch_is_an_error(dsp_setup):
     with pytest.raises(ConfigError, match="does not match the cfg"):
         dsp.process(np.zeros((64, 12, 256), dtype=np.complex64))
     assert isinstance(dsp, RadarDsp) and isinstance(geom, FrameGeometry)
+
+
+PROJECT_CFGS = sorted((Path(__file__).parents[2] / "cfg" / "radar").glob("*.cfg"))
+
+
+@pytest.mark.skipif(not PROJECT_CFGS, reason="no cfg/radar/*.cfg in this checkout")
+@pytest.mark.parametrize("path", PROJECT_CFGS, ids=lambda p: p.name)
+def test_the_uart_path_cfgs_drive_the_dsp(path, caplog):
+    """The vehicle cfgs of the UART path, recorded raw over 2 lanes, give the same targets."""
+    from drivers.dca1000.antenna import LAYOUTS
+    from drivers.ti.cfg import load_cfg
+
+    with caplog.at_level(logging.ERROR, logger="drivers.ti.cfg"):
+        cfg = load_cfg(path)
+    c = cfg.chirp
+    antenna = LAYOUTS["xwr16xxboost"] if c.tx_order == (0, 1) else LAYOUTS["awr1843boost"]
+    geom, dsp = make_dsp(cfg, "2lane", antenna)
+    targets = [Target(30.0, 0.7 * c.max_velocity_mps, 25.0), Target(60.0, -5.0, -30.0)]
+    raw = cube_to_raw(synth_cube(c, geom, targets, antenna), geom)
+    pts = dsp.process(raw_to_cube(raw, geom)).points
+    assert len(pts) == 2
+    for t in targets:
+        dr, dv, daz, _ = _match(pts, t, c)
+        assert dr <= 1.0 and dv <= 1.0 and daz <= 2.0
+
+
+def test_mirrored_board_flips_x_unless_declared(radar_cfg):
+    from drivers.dca1000.antenna import AWR2243BOOST
+
+    mirrored = AWR2243BOOST.mirror_x()
+    geom, plain = make_dsp(radar_cfg)
+    _, declared = make_dsp(radar_cfg, antenna=mirrored)
+    t = Target(20.0, 1.0, 30.0)
+    cube = synth_cube(radar_cfg.chirp, geom, [t], mirrored)  # a board wired the other way
+    assert declared.process(cube).points[0, 0] > 5.0
+    assert plain.process(cube).points[0, 0] < -5.0
+
+
+def test_cli_antenna_choices_are_the_layouts():
+    import argparse
+
+    from drivers.dca1000.antenna import LAYOUTS
+    from edge.commands import dsp as cmd
+
+    p = argparse.ArgumentParser()
+    cmd.add_arguments(p)
+    action = next(a for a in p._actions if a.dest == "antenna")
+    assert sorted(action.choices) == sorted(LAYOUTS)
