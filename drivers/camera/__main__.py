@@ -1,13 +1,17 @@
 """Camera tools: `python -m drivers.camera COMMAND ...` (a program: it prints; the library logs).
 
-  check-model MODEL [--kind K] [--input-size W H]  load an ONNX detector and check its layout
-  detect MODEL CALIB IMAGE... [--kind K]           run the detector stage on images, print boxes
-  quantize SRC DST [--images IMG...]               INT8 (dynamic, or static QDQ with images); needs onnx
-  extrinsic PAIRS.csv CALIB --out OUT [--init]      estimate T_cam_radar from matched pairs
-                                                   (CSV columns x, y, z, u, v; radar m, image px)
-  oak-calibration --size W H --out OUT [--extrinsic-from CALIB] [--device ID]
-                                                   write the OAK's factory intrinsics as a calibration file
-  oak-check MODEL [CALIB]                          validate an NN archive / blob and try to open the OAK
+check-model MODEL [--kind K] [--input-size W H]
+    load an ONNX detector and check its layout
+detect MODEL CALIB IMAGE... [--kind K]
+    run the detector stage on images, print the boxes as JSON lines
+quantize SRC DST [--images IMG...]
+    INT8 (dynamic, or static QDQ calibrated on images); needs the onnx package
+extrinsic PAIRS.csv CALIB --out OUT [--init]
+    estimate T_cam_radar from matched pairs (CSV columns x, y, z, u, v; radar m, image px)
+oak-calibration --size W H --out OUT [--extrinsic-from CALIB] [--device ID]
+    write the OAK's factory intrinsics as a calibration file
+oak-check MODEL [CALIB]
+    validate an NN archive / blob, then try to open the OAK
 """
 
 from __future__ import annotations
@@ -38,8 +42,10 @@ def _check_model(a) -> int:
     from drivers.camera.detector import OnnxDetector
 
     det = OnnxDetector(_detector_config(a.model, a.kind, a.input_size))
-    print(f"{a.model}: ok: kind {det.config.kind}, input {det.input_size[0]}x{det.input_size[1]}, "
-          f"{det.num_classes} classes")
+    print(
+        f"{a.model}: ok: kind {det.config.kind}, input {det.input_size[0]}x{det.input_size[1]}, "
+        f"{det.num_classes} classes"
+    )
     return 0
 
 
@@ -58,9 +64,15 @@ def _detect(a) -> int:
         if out is None:
             print(f"{path}: skipped (unreadable or not the calibrated size)")
             continue
-        rows = [dict(zip(("u1", "v1", "u2", "v2", "score", "depth"), map(lambda x: round(float(x), 3), b)),
-                     depth_sigma=round(float(s), 3), cls=int(c))
-                for b, s, c in zip(out.boxes, out.depth_sigma, out.classes)]
+        names = ("u1", "v1", "u2", "v2", "score", "depth")
+        rows = [
+            {
+                **{k: round(float(x), 3) for k, x in zip(names, b, strict=True)},
+                "depth_sigma": round(float(s), 3),
+                "cls": int(c),
+            }
+            for b, s, c in zip(out.boxes, out.depth_sigma, out.classes, strict=True)
+        ]
         print(json.dumps({"image": path, "boxes": rows}))
     return 0
 
@@ -85,10 +97,19 @@ def _extrinsic(a) -> int:
     data = np.loadtxt(a.pairs, delimiter=",", comments="#", ndmin=2)
     if data.shape[1] < 5:
         raise MMatchError(f"{a.pairs}: expected columns x, y, z, u, v")
-    T, info = estimate_T_cam_radar(data[:, :3], data[:, 3:5], calib.K, calib.dist,
-                                   T_init=calib.T_cam_radar if a.init else None, reprojection_px=a.px)
+    T, info = estimate_T_cam_radar(
+        data[:, :3],
+        data[:, 3:5],
+        calib.K,
+        calib.dist,
+        T_init=calib.T_cam_radar if a.init else None,
+        reprojection_px=a.px,
+    )
     save_calibration(a.out, dataclasses.replace(calib, T_cam_radar=T))
-    print(f"{a.out}: T_cam_radar from {len(info['inliers'])}/{info['n']} pairs, rms {info['rms_px']:.2f} px")
+    print(
+        f"{a.out}: T_cam_radar from {len(info['inliers'])}/{info['n']} pairs, "
+        f"rms {info['rms_px']:.2f} px"
+    )
     return 0
 
 
@@ -97,8 +118,11 @@ def _oak_calibration(a) -> int:
     from drivers.camera.sources.oak import calibration_from_oak, import_depthai
 
     dai = import_depthai()
-    T = load_calibration(a.extrinsic_from).T_cam_radar if a.extrinsic_from else \
-        np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+    T = (
+        load_calibration(a.extrinsic_from).T_cam_radar
+        if a.extrinsic_from
+        else np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+    )
     try:
         device = dai.Device(dai.DeviceInfo(a.device)) if a.device else dai.Device()
     except RuntimeError as exc:
@@ -106,8 +130,14 @@ def _oak_calibration(a) -> int:
     with device:
         calib = calibration_from_oak(device.readCalibration(), tuple(a.size), T, dai=dai)
     save_calibration(a.out, calib)
-    print(f"{a.out}: factory intrinsics of CAM_A at {a.size[0]}x{a.size[1]}"
-          + ("" if a.extrinsic_from else "; T_cam_radar is the nominal axis swap: estimate it (extrinsic)"))
+    print(
+        f"{a.out}: factory intrinsics of CAM_A at {a.size[0]}x{a.size[1]}"
+        + (
+            ""
+            if a.extrinsic_from
+            else "; T_cam_radar is the nominal axis swap: estimate it (extrinsic)"
+        )
+    )
     return 0
 
 
@@ -118,19 +148,28 @@ def _oak_check(a) -> int:
 
     settings = _sidecar(a.model)
     settings["model"] = a.model
-    calib = load_calibration(a.calibration) if a.calibration else \
-        validate([[800, 0, 640], [0, 800, 360], [0, 0, 1]], [], (1280, 720), np.eye(4))
+    calib = (
+        load_calibration(a.calibration)
+        if a.calibration
+        else validate([[800, 0, 640], [0, 800, 360], [0, 0, 1]], [], (1280, 720), np.eye(4))
+    )
     cam = OakCamera(OakConfig(**settings), calib)
     print(f"{a.model}: ok ({cam.model.kind}, NN input {cam.model.input_size})")
     with cam:
         det = cam.read(5.0)
-        print(f"OAK running: {'no detections within 5 s' if det is None else f'{len(det.boxes)} boxes'}")
+        print(
+            "OAK running: "
+            + ("no detections within 5 s" if det is None else f"{len(det.boxes)} boxes")
+        )
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m drivers.camera", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m drivers.camera",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = p.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("check-model")
     s.add_argument("model")

@@ -28,7 +28,7 @@ def _scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     W, H = 1280, 720
     img = np.empty((H, W, 3), np.uint8)
     img[: H // 3] = (230, 200, 160)
-    img[H // 3:] = (105, 105, 105)
+    img[H // 3 :] = (105, 105, 105)
     img = np.clip(img.astype(np.int16) + rng.integers(-8, 9, img.shape), 0, 255).astype(np.uint8)
     # a 5 x 4 grid of cells over the road (no two boxes overlap), one vehicle per cell,
     # 40..240 px wide: about 300 k box pixels in all
@@ -68,7 +68,7 @@ def _yolo_raw(rng: np.random.Generator, boxes640: np.ndarray, v5: bool) -> np.nd
 
 
 def _centernet_raw(rng: np.random.Generator, boxes512: np.ndarray) -> tuple[np.ndarray, ...]:
-    hm = rng.uniform(-9, -4, (1, 80, 128, 128)).astype(np.float32)      # logits, all below threshold
+    hm = rng.uniform(-9, -4, (1, 80, 128, 128)).astype(np.float32)  # logits, all below threshold
     wh = np.zeros((1, 2, 128, 128), np.float32)
     reg = np.zeros((1, 2, 128, 128), np.float32)
     for b in boxes512 / 4:
@@ -81,7 +81,11 @@ def _centernet_raw(rng: np.random.Generator, boxes512: np.ndarray) -> tuple[np.n
 
 def _stats(samples: list[float]) -> tuple[float, float, float]:
     a = np.asarray(samples) * 1e3
-    return round(float(np.median(a)), 4), round(float(np.percentile(a, 90)), 4), round(float(a.min()), 4)
+    return (
+        round(float(np.median(a)), 4),
+        round(float(np.percentile(a, 90)), 4),
+        round(float(a.min()), 4),
+    )
 
 
 def run(quick: bool = False) -> dict:
@@ -99,13 +103,18 @@ def run(quick: bool = False) -> dict:
     try:
         rng = np.random.default_rng(0)
         img, boxes = _scene(rng)
-        lb = Letterbox(0.5, 0.5, 0.0, 140.0)                      # 1280x720 letterboxed into 640x640
+        lb = Letterbox(0.5, 0.5, 0.0, 140.0)  # 1280x720 letterboxed into 640x640
         boxes640 = boxes * 0.5 + np.array([0, 140, 0, 140], np.float32)
         v8 = _yolo_raw(rng, boxes640, v5=False)
         v5 = _yolo_raw(rng, boxes640, v5=True)
         cn = _centernet_raw(rng, boxes * 0.4 + np.array([0, 112, 0, 112], np.float32))
-        calib = validate([[800, 0, 640], [0, 800, 360], [0, 0, 1]], [-0.1, 0.02, 0, 0, 0], (1280, 720), np.eye(4),
-                         {"camera_height": 1.4, "pitch_deg": 1.0})
+        calib = validate(
+            [[800, 0, 640], [0, 800, 360], [0, 0, 1]],
+            [-0.1, 0.02, 0, 0, 0],
+            (1280, 720),
+            np.eye(4),
+            {"camera_height": 1.4, "pitch_deg": 1.0},
+        )
         reps = 15 if quick else 300
 
         def decode_v8():
@@ -117,26 +126,38 @@ def run(quick: bool = False) -> dict:
         cases = {
             "decode_v8": decode_v8,
             "decode_v5": lambda: suppress(decode_yolov5(v5, 0.25), 0.45),
-            "decode_centernet": lambda: suppress(decode_centernet(*cn, stride=4.0, score_threshold=0.25), 0.45),
-            "descriptor_20": lambda: hsv_descriptor(img, boxes, max_pixels=DEFAULT_DESCRIPTOR_MAX_PIXELS),
+            "decode_centernet": lambda: suppress(
+                decode_centernet(*cn, stride=4.0, score_threshold=0.25), 0.45
+            ),
+            "descriptor_20": lambda: hsv_descriptor(
+                img, boxes, max_pixels=DEFAULT_DESCRIPTOR_MAX_PIXELS
+            ),
             "descriptor_20_exact": lambda: hsv_descriptor(img, boxes),
             "frame_v8": lambda: stage.process(img, 0.0),
         }
         out: dict[str, float] = {}
         found = len(decode_v8())
         for name, fn in cases.items():
-            fn()                                                     # warm-up
+            fn()  # warm-up
             samples = []
             for _ in range(reps):
                 t0 = time.perf_counter()
                 fn()
                 samples.append(time.perf_counter() - t0)
             out[f"{name}_ms"], out[f"{name}_p90_ms"], out[f"{name}_min_ms"] = _stats(samples)
-        out["descriptor_plus_decode_v8_ms"] = round(out["decode_v8_ms"] + out["descriptor_20_ms"], 4)
-        out["descriptor_plus_decode_v8_min_ms"] = round(out["decode_v8_min_ms"] + out["descriptor_20_min_ms"], 4)
-        out["descriptor_exact_plus_decode_v8_ms"] = round(out["decode_v8_ms"] + out["descriptor_20_exact_ms"], 4)
+        out["descriptor_plus_decode_v8_ms"] = round(
+            out["decode_v8_ms"] + out["descriptor_20_ms"], 4
+        )
+        out["descriptor_plus_decode_v8_min_ms"] = round(
+            out["decode_v8_min_ms"] + out["descriptor_20_min_ms"], 4
+        )
+        out["descriptor_exact_plus_decode_v8_ms"] = round(
+            out["decode_v8_ms"] + out["descriptor_20_exact_ms"], 4
+        )
         out["descriptor_max_pixels"] = float(DEFAULT_DESCRIPTOR_MAX_PIXELS)
-        out["loadavg_1min"] = round(os.getloadavg()[0], 2)     # the machine is shared: read the times with it
+        out["loadavg_1min"] = round(
+            os.getloadavg()[0], 2
+        )  # the machine is shared: read the times with it
         out["boxes_found_v8"] = float(found)
         out["box_pixels"] = float(np.prod(np.diff(boxes.reshape(-1, 2, 2), axis=1), axis=-1).sum())
         out["target_ms"] = 2.0

@@ -58,8 +58,10 @@ class Calibration:
     source: str = "<memory>"
 
     def camera_model(self) -> CameraModel:
-        """The pinhole model the pipeline uses (boxes are undistorted before they leave the driver)."""
-        return CameraModel(K=self.K.copy(), image_size=tuple(self.image_size), T_cam_radar=self.T_cam_radar.copy())
+        """The pinhole model the pipeline uses (boxes leave the driver undistorted)."""
+        return CameraModel(
+            K=self.K.copy(), image_size=tuple(self.image_size), T_cam_radar=self.T_cam_radar.copy()
+        )
 
     def ground_plane(self, radar_height: float | None = None) -> GroundPlane | None:
         """The [ground] table, else derived from T_cam_radar and the radar height (if given)."""
@@ -92,14 +94,20 @@ class Calibration:
             return out
         u1, v1, u2, v2 = (b[:, i].astype(np.float64)[:, None] for i in range(4))
         t = np.linspace(0.0, 1.0, 5)[None, :]
-        cu = np.clip(self.K[0, 2], u1, u2)                  # principal-axis crossings, clipped to the box
+        cu = np.clip(self.K[0, 2], u1, u2)  # principal-axis crossings, clipped to the box
         cv = np.clip(self.K[1, 2], v1, v2)
-        us = np.concatenate([u1 + (u2 - u1) * t, cu], axis=1)    # (M, 6) along horizontal edges
-        vs = np.concatenate([v1 + (v2 - v1) * t, cv], axis=1)    # (M, 6) along vertical edges
+        us = np.concatenate([u1 + (u2 - u1) * t, cu], axis=1)  # (M, 6) along horizontal edges
+        vs = np.concatenate([v1 + (v2 - v1) * t, cv], axis=1)  # (M, 6) along vertical edges
         n = us.shape[1]
-        pts = np.concatenate([np.stack([us, np.repeat(v1, n, 1)], -1), np.stack([us, np.repeat(v2, n, 1)], -1),
-                              np.stack([np.repeat(u1, n, 1), vs], -1), np.stack([np.repeat(u2, n, 1), vs], -1)],
-                             axis=1)                              # (M, 4n, 2)
+        pts = np.concatenate(
+            [
+                np.stack([us, np.repeat(v1, n, 1)], -1),
+                np.stack([us, np.repeat(v2, n, 1)], -1),
+                np.stack([np.repeat(u1, n, 1), vs], -1),
+                np.stack([np.repeat(u2, n, 1), vs], -1),
+            ],
+            axis=1,
+        )  # (M, 4n, 2)
         und = self.undistort_points(pts.reshape(-1, 2)).reshape(len(b), -1, 2)
         out[:, 0:2] = und.min(axis=1)
         out[:, 2:4] = und.max(axis=1)
@@ -118,61 +126,101 @@ def _matrix(path: str, key: str, value, shape: tuple[int, ...]) -> np.ndarray:
     return a
 
 
-def validate(K, dist, image_size, T_cam_radar, ground: dict | None = None, path: str = "<memory>") -> Calibration:
+def validate(
+    K, dist, image_size, T_cam_radar, ground: dict | None = None, path: str = "<memory>"
+) -> Calibration:
     """Check every field (see module docstring) and build a Calibration; errors name the key."""
     try:
         size = tuple(int(x) for x in image_size)
     except (TypeError, ValueError) as exc:
-        raise CalibrationError(path, "camera.image_size", "expected [width, height] integers") from exc
+        raise CalibrationError(
+            path, "camera.image_size", "expected [width, height] integers"
+        ) from exc
     if len(size) != 2 or min(size) < 16 or max(size) > 16384:
-        raise CalibrationError(path, "camera.image_size", f"expected [width, height] in 16..16384 px, got {image_size}")
+        raise CalibrationError(
+            path, "camera.image_size", f"expected [width, height] in 16..16384 px, got {image_size}"
+        )
     W, H = size
     K = _matrix(path, "camera.K", K, (3, 3))
     if not np.allclose(K[2], (0, 0, 1)) or K[1, 0] != 0:
-        raise CalibrationError(path, "camera.K", f"expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+        raise CalibrationError(
+            path, "camera.K", f"expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}"
+        )
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     if fx <= 0 or fy <= 0:
-        raise CalibrationError(path, "camera.K", f"focal lengths must be positive (fx={fx}, fy={fy})")
+        raise CalibrationError(
+            path, "camera.K", f"focal lengths must be positive (fx={fx}, fy={fy})"
+        )
     hfov = math.degrees(2 * math.atan(W / (2 * fx)))
     if not 5.0 <= hfov <= 175.0:
-        raise CalibrationError(path, "camera.K", f"fx={fx:g} px gives a horizontal field of view of {hfov:.1f} deg "
-                                                 f"for width {W} px; expected 5..175 deg (focal length in px?)")
+        raise CalibrationError(
+            path,
+            "camera.K",
+            f"fx={fx:g} px gives a horizontal field of view of {hfov:.1f} deg "
+            f"for width {W} px; expected 5..175 deg (focal length in px?)",
+        )
     if not 0.5 <= fx / fy <= 2.0:
         raise CalibrationError(path, "camera.K", f"fx/fy = {fx / fy:.3f} outside [0.5, 2]")
     if not (0 <= cx <= W and 0 <= cy <= H):
-        raise CalibrationError(path, "camera.K", f"principal point ({cx:g}, {cy:g}) outside the {W}x{H} image")
+        raise CalibrationError(
+            path, "camera.K", f"principal point ({cx:g}, {cy:g}) outside the {W}x{H} image"
+        )
     d = np.asarray(dist if dist is not None else [], dtype=np.float64).ravel()
     if d.size not in _DIST_LENGTHS:
-        raise CalibrationError(path, "camera.dist", f"expected {', '.join(map(str, _DIST_LENGTHS))} coefficients "
-                                                    f"(OpenCV order k1, k2, p1, p2[, k3...]), got {d.size}")
+        raise CalibrationError(
+            path,
+            "camera.dist",
+            f"expected {', '.join(map(str, _DIST_LENGTHS))} coefficients "
+            f"(OpenCV order k1, k2, p1, p2[, k3...]), got {d.size}",
+        )
     if not np.isfinite(d).all():
         raise CalibrationError(path, "camera.dist", "contains a non-finite value")
     T = _matrix(path, "extrinsic.T_cam_radar", T_cam_radar, (4, 4))
     if not np.allclose(T[3], (0, 0, 0, 1), atol=1e-9):
-        raise CalibrationError(path, "extrinsic.T_cam_radar", f"last row must be [0, 0, 0, 1], got {T[3].tolist()}")
+        raise CalibrationError(
+            path, "extrinsic.T_cam_radar", f"last row must be [0, 0, 0, 1], got {T[3].tolist()}"
+        )
     R = T[:3, :3]
     err = float(np.abs(R.T @ R - np.eye(3)).max())
     if err > 1e-3:
-        raise CalibrationError(path, "extrinsic.T_cam_radar", f"rotation is not orthonormal (max |R^T R - I| = {err:.2e})")
+        raise CalibrationError(
+            path,
+            "extrinsic.T_cam_radar",
+            f"rotation is not orthonormal (max |R^T R - I| = {err:.2e})",
+        )
     if np.linalg.det(R) < 0:
-        raise CalibrationError(path, "extrinsic.T_cam_radar", "rotation has det -1 (a reflection; check axis signs)")
+        raise CalibrationError(
+            path, "extrinsic.T_cam_radar", "rotation has det -1 (a reflection; check axis signs)"
+        )
     if np.linalg.norm(T[:3, 3]) > 10.0:
-        raise CalibrationError(path, "extrinsic.T_cam_radar", f"translation {T[:3, 3].tolist()} is over 10 m (units?)")
+        raise CalibrationError(
+            path, "extrinsic.T_cam_radar", f"translation {T[:3, 3].tolist()} is over 10 m (units?)"
+        )
     gp = None
     if ground is not None:
         unknown = sorted(set(ground) - {"camera_height", "pitch_deg", "roll_deg"})
         if unknown:
-            raise CalibrationError(path, f"ground.{unknown[0]}", "unknown key (known: camera_height, pitch_deg, roll_deg)")
+            raise CalibrationError(
+                path,
+                f"ground.{unknown[0]}",
+                "unknown key (known: camera_height, pitch_deg, roll_deg)",
+            )
         if "camera_height" not in ground:
             raise CalibrationError(path, "ground.camera_height", "missing")
         h = ground["camera_height"]
         if not isinstance(h, (int, float)) or not 0.1 <= h <= 10.0:
-            raise CalibrationError(path, "ground.camera_height", f"expected metres in 0.1..10, got {h!r}")
+            raise CalibrationError(
+                path, "ground.camera_height", f"expected metres in 0.1..10, got {h!r}"
+            )
         for key in ("pitch_deg", "roll_deg"):
             val = ground.get(key, 0.0)
             if not isinstance(val, (int, float)) or not -45.0 <= val <= 45.0:
-                raise CalibrationError(path, f"ground.{key}", f"expected degrees in -45..45, got {val!r}")
-        gp = GroundPlane(float(h), float(ground.get("pitch_deg", 0.0)), float(ground.get("roll_deg", 0.0)))
+                raise CalibrationError(
+                    path, f"ground.{key}", f"expected degrees in -45..45, got {val!r}"
+                )
+        gp = GroundPlane(
+            float(h), float(ground.get("pitch_deg", 0.0)), float(ground.get("roll_deg", 0.0))
+        )
     return Calibration(K=K, dist=d, image_size=(W, H), T_cam_radar=T, ground=gp, source=path)
 
 
@@ -201,10 +249,14 @@ def load_calibration(path: str | Path) -> Calibration:
             raise CalibrationError(p, f"camera.{key}", "missing")
     unknown = sorted(set(cam) - {"image_size", "K", "dist"})
     if unknown:
-        raise CalibrationError(p, f"camera.{unknown[0]}", "unknown key (known: image_size, K, dist)")
+        raise CalibrationError(
+            p, f"camera.{unknown[0]}", "unknown key (known: image_size, K, dist)"
+        )
     if "T_cam_radar" not in ext:
         raise CalibrationError(p, "extrinsic.T_cam_radar", "missing")
-    return validate(cam["K"], cam.get("dist", []), cam["image_size"], ext["T_cam_radar"], data.get("ground"), p)
+    return validate(
+        cam["K"], cam.get("dist", []), cam["image_size"], ext["T_cam_radar"], data.get("ground"), p
+    )
 
 
 def _fmt_rows(a: np.ndarray) -> str:
@@ -214,14 +266,25 @@ def _fmt_rows(a: np.ndarray) -> str:
 
 def dumps_calibration(c: Calibration) -> str:
     """TOML text of a calibration (round-trips through load_calibration)."""
-    lines = [f'format = "{FORMAT}"', "", "[camera]",
-             f"image_size = [{c.image_size[0]}, {c.image_size[1]}]",
-             f"K = {_fmt_rows(c.K)}",
-             "dist = [" + ", ".join(repr(float(x)) for x in c.dist) + "]", "",
-             "[extrinsic]", f"T_cam_radar = {_fmt_rows(c.T_cam_radar)}"]
+    lines = [
+        f'format = "{FORMAT}"',
+        "",
+        "[camera]",
+        f"image_size = [{c.image_size[0]}, {c.image_size[1]}]",
+        f"K = {_fmt_rows(c.K)}",
+        "dist = [" + ", ".join(repr(float(x)) for x in c.dist) + "]",
+        "",
+        "[extrinsic]",
+        f"T_cam_radar = {_fmt_rows(c.T_cam_radar)}",
+    ]
     if c.ground is not None:
-        lines += ["", "[ground]", f"camera_height = {c.ground.camera_height!r}",
-                  f"pitch_deg = {c.ground.pitch_deg!r}", f"roll_deg = {c.ground.roll_deg!r}"]
+        lines += [
+            "",
+            "[ground]",
+            f"camera_height = {c.ground.camera_height!r}",
+            f"pitch_deg = {c.ground.pitch_deg!r}",
+            f"roll_deg = {c.ground.roll_deg!r}",
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -238,9 +301,15 @@ def project_radar(points_radar: np.ndarray, K: np.ndarray, T_cam_radar: np.ndarr
     return uv
 
 
-def estimate_T_cam_radar(points_radar: np.ndarray, pixels: np.ndarray, K: np.ndarray,
-                         dist: np.ndarray | None = None, T_init: np.ndarray | None = None,
-                         reprojection_px: float = 8.0, iterations: int = 500) -> tuple[np.ndarray, dict]:
+def estimate_T_cam_radar(
+    points_radar: np.ndarray,
+    pixels: np.ndarray,
+    K: np.ndarray,
+    dist: np.ndarray | None = None,
+    T_init: np.ndarray | None = None,
+    reprojection_px: float = 8.0,
+    iterations: int = 500,
+) -> tuple[np.ndarray, dict]:
     """Estimate the radar->camera extrinsic from matched radar/box pairs of a recording.
 
     points_radar: (N, 3) radar-frame positions (m) of vehicles (e.g. the centroid of each
@@ -268,14 +337,40 @@ def estimate_T_cam_radar(points_radar: np.ndarray, pixels: np.ndarray, K: np.nda
     if T_init is not None:
         rvec0, _ = cv2.Rodrigues(np.asarray(T_init, np.float64)[:3, :3])
         tvec0 = np.asarray(T_init, np.float64)[:3, 3].reshape(3, 1).copy()
-        found, rvec, tvec, inl = cv2.solvePnPRansac(obj, img, K, d, rvec0.copy(), tvec0.copy(), True, iterations,
-                                                    reprojection_px, 0.999, None, cv2.SOLVEPNP_ITERATIVE)
+        found, rvec, tvec, inl = cv2.solvePnPRansac(
+            obj,
+            img,
+            K,
+            d,
+            rvec0.copy(),
+            tvec0.copy(),
+            True,
+            iterations,
+            reprojection_px,
+            0.999,
+            None,
+            cv2.SOLVEPNP_ITERATIVE,
+        )
     else:
-        found, rvec, tvec, inl = cv2.solvePnPRansac(obj, img, K, d, None, None, False, iterations,
-                                                    reprojection_px, 0.999, None, cv2.SOLVEPNP_SQPNP)
+        found, rvec, tvec, inl = cv2.solvePnPRansac(
+            obj,
+            img,
+            K,
+            d,
+            None,
+            None,
+            False,
+            iterations,
+            reprojection_px,
+            0.999,
+            None,
+            cv2.SOLVEPNP_SQPNP,
+        )
     if not found or inl is None or len(inl) < 6:
-        raise EstimationError(f"no consistent extrinsic from {len(obj)} pairs "
-                              f"({0 if inl is None else len(inl)} inliers at {reprojection_px} px)")
+        raise EstimationError(
+            f"no consistent extrinsic from {len(obj)} pairs "
+            f"({0 if inl is None else len(inl)} inliers at {reprojection_px} px)"
+        )
     inl = inl.ravel()
     rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, d, rvec, tvec)
     R, _ = cv2.Rodrigues(rvec)

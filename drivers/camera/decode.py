@@ -41,16 +41,24 @@ class Decoded:
     depth: np.ndarray | None = None
 
     def take(self, idx: np.ndarray) -> Decoded:
-        return Decoded(self.boxes[idx], self.scores[idx], self.classes[idx],
-                       None if self.depth is None else self.depth[idx])
+        return Decoded(
+            self.boxes[idx],
+            self.scores[idx],
+            self.classes[idx],
+            None if self.depth is None else self.depth[idx],
+        )
 
     def __len__(self) -> int:
         return len(self.scores)
 
 
 def _empty(with_depth: bool) -> Decoded:
-    return Decoded(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int32),
-                   np.zeros(0, np.float32) if with_depth else None)
+    return Decoded(
+        np.zeros((0, 4), np.float32),
+        np.zeros(0, np.float32),
+        np.zeros(0, np.int32),
+        np.zeros(0, np.float32) if with_depth else None,
+    )
 
 
 def _cxcywh_to_xyxy(c: np.ndarray) -> np.ndarray:
@@ -72,19 +80,24 @@ def yolo_num_classes(width: int, kind: str, num_classes: int | None) -> int:
     return width - fixed if num_classes is None else num_classes
 
 
-def decode_yolov5(out: np.ndarray, score_threshold: float = 0.25, classes: tuple[int, ...] | None = None,
-                  num_classes: int | None = None, depth_index: int | None = None,
-                  top_k: int = 1000) -> Decoded:
+def decode_yolov5(
+    out: np.ndarray,
+    score_threshold: float = 0.25,
+    classes: tuple[int, ...] | None = None,
+    num_classes: int | None = None,
+    depth_index: int | None = None,
+    top_k: int = 1000,
+) -> Decoded:
     """YOLOv5-style output (1, N, 5 + C [+ extra]) -> candidates above `score_threshold`."""
     a = np.asarray(out)
     a = a.reshape(a.shape[-2], a.shape[-1])
     nc = yolo_num_classes(a.shape[1], "yolov5", num_classes)
     obj = a[:, 4]
-    cand = np.flatnonzero(obj > score_threshold)            # score <= obj, so this filter is exact
+    cand = np.flatnonzero(obj > score_threshold)  # score <= obj, so this filter is exact
     if cand.size == 0:
         return _empty(depth_index is not None)
     rows = a[cand]
-    cls_cols = rows[:, 5:5 + nc] if classes is None else rows[:, [5 + c for c in classes]]
+    cls_cols = rows[:, 5 : 5 + nc] if classes is None else rows[:, [5 + c for c in classes]]
     best = np.argmax(cls_cols, axis=1)
     scores = rows[:, 4] * cls_cols[np.arange(len(rows)), best]
     keep = np.flatnonzero(scores > score_threshold)
@@ -92,38 +105,58 @@ def decode_yolov5(out: np.ndarray, score_threshold: float = 0.25, classes: tuple
     rows, best, scores = rows[keep], best[keep], scores[keep]
     cls_ids = best if classes is None else np.asarray(classes)[best]
     depth = None if depth_index is None else rows[:, depth_index].astype(np.float32)
-    return Decoded(_cxcywh_to_xyxy(rows[:, :4]), scores.astype(np.float32), cls_ids.astype(np.int32), depth)
+    return Decoded(
+        _cxcywh_to_xyxy(rows[:, :4]), scores.astype(np.float32), cls_ids.astype(np.int32), depth
+    )
 
 
-def decode_yolov8(out: np.ndarray, score_threshold: float = 0.25, classes: tuple[int, ...] | None = None,
-                  num_classes: int | None = None, depth_index: int | None = None,
-                  top_k: int = 1000) -> Decoded:
+def decode_yolov8(
+    out: np.ndarray,
+    score_threshold: float = 0.25,
+    classes: tuple[int, ...] | None = None,
+    num_classes: int | None = None,
+    depth_index: int | None = None,
+    top_k: int = 1000,
+) -> Decoded:
     """YOLOv8-style output (1, 4 + C [+ extra], N) -> candidates above `score_threshold`."""
     a = np.asarray(out)
     a = a.reshape(a.shape[-2], a.shape[-1])
     nc = yolo_num_classes(a.shape[0], "yolov8", num_classes)
-    cls_rows = a[4:4 + nc] if classes is None else a[[4 + c for c in classes]]
+    cls_rows = a[4 : 4 + nc] if classes is None else a[[4 + c for c in classes]]
     scores_all = cls_rows.max(axis=0)
     cand = np.flatnonzero(scores_all > score_threshold)
     if cand.size == 0:
         return _empty(depth_index is not None)
     cand = cand[_top_k(scores_all[cand], top_k)]
-    cols = a[:, cand]                                         # (D, K)
-    cls_c = cols[4:4 + nc] if classes is None else cols[[4 + c for c in classes]]
+    cols = a[:, cand]  # (D, K)
+    cls_c = cols[4 : 4 + nc] if classes is None else cols[[4 + c for c in classes]]
     best = np.argmax(cls_c, axis=0)
     cls_ids = best if classes is None else np.asarray(classes)[best]
     depth = None if depth_index is None else cols[depth_index].astype(np.float32)
-    return Decoded(_cxcywh_to_xyxy(cols[:4].T), scores_all[cand].astype(np.float32), cls_ids.astype(np.int32), depth)
+    return Decoded(
+        _cxcywh_to_xyxy(cols[:4].T),
+        scores_all[cand].astype(np.float32),
+        cls_ids.astype(np.int32),
+        depth,
+    )
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-x))
 
 
-def decode_centernet(heatmap: np.ndarray, wh: np.ndarray, reg: np.ndarray | None = None,
-                     dep: np.ndarray | None = None, stride: float = 4.0, score_threshold: float = 0.25,
-                     classes: tuple[int, ...] | None = None, apply_sigmoid: bool | None = None,
-                     depth_is_metres: bool = False, top_k: int = 100) -> Decoded:
+def decode_centernet(
+    heatmap: np.ndarray,
+    wh: np.ndarray,
+    reg: np.ndarray | None = None,
+    dep: np.ndarray | None = None,
+    stride: float = 4.0,
+    score_threshold: float = 0.25,
+    classes: tuple[int, ...] | None = None,
+    apply_sigmoid: bool | None = None,
+    depth_is_metres: bool = False,
+    top_k: int = 100,
+) -> Decoded:
     """CenterNet heads -> candidates (network-input px = heatmap cell x `stride`).
 
     heatmap: (1, C, h, w); apply_sigmoid None decides from the values (any outside [0, 1]
@@ -137,8 +170,10 @@ def decode_centernet(heatmap: np.ndarray, wh: np.ndarray, reg: np.ndarray | None
         hm = hm[list(classes)]
     if apply_sigmoid is None:
         apply_sigmoid = bool(hm.min() < 0.0 or hm.max() > 1.0)
-    thr = float(np.log(score_threshold / (1 - score_threshold))) if apply_sigmoid else score_threshold
-    flat = np.flatnonzero(hm > thr)                 # (much faster than np.nonzero on a 3-D array)
+    thr = (
+        float(np.log(score_threshold / (1 - score_threshold))) if apply_sigmoid else score_threshold
+    )
+    flat = np.flatnonzero(hm > thr)  # (much faster than np.nonzero on a 3-D array)
     if flat.size == 0:
         return _empty(dep is not None)
     nc, h, w = hm.shape
@@ -158,17 +193,25 @@ def decode_centernet(heatmap: np.ndarray, wh: np.ndarray, reg: np.ndarray | None
     size = np.asarray(wh).reshape(2, h, w)[:, y, x]
     off = np.zeros((2, len(y))) if reg is None else np.asarray(reg).reshape(2, h, w)[:, y, x]
     cx, cy = x + off[0], y + off[1]
-    boxes = np.stack([cx - size[0] / 2, cy - size[1] / 2, cx + size[0] / 2, cy + size[1] / 2], axis=1) * stride
+    boxes = (
+        np.stack([cx - size[0] / 2, cy - size[1] / 2, cx + size[0] / 2, cy + size[1] / 2], axis=1)
+        * stride
+    )
     depth = None
     if dep is not None:
         d = np.asarray(dep).reshape(h, w)[y, x].astype(np.float64)
         depth = (d if depth_is_metres else 1.0 / _sigmoid(d) - 1.0).astype(np.float32)
-    return Decoded(boxes.astype(np.float32), scores.astype(np.float32), cls_map[c].astype(np.int32), depth)
+    return Decoded(
+        boxes.astype(np.float32), scores.astype(np.float32), cls_map[c].astype(np.int32), depth
+    )
 
 
-def suppress(dec: Decoded, iou_threshold: float = 0.45, agnostic: bool = True,
-             max_detections: int = 100) -> Decoded:
+def suppress(
+    dec: Decoded, iou_threshold: float = 0.45, agnostic: bool = True, max_detections: int = 100
+) -> Decoded:
     """NMS over decoded candidates (class-agnostic by default: a car and a truck box on the same
     vehicle are one vehicle). Returns the kept candidates, highest score first."""
-    keep = nms(dec.boxes, dec.scores, iou_threshold, None if agnostic else dec.classes, max_detections)
+    keep = nms(
+        dec.boxes, dec.scores, iou_threshold, None if agnostic else dec.classes, max_detections
+    )
     return dec.take(keep)

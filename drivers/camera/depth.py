@@ -48,11 +48,11 @@ class GroundPlane:
         (radar frame: z up, so the road is z = -radar_height there)."""
         T = np.asarray(T_cam_radar, np.float64)
         R, t = T[:3, :3], T[:3, 3]
-        up = R[:, 2]                                   # radar +z in camera coordinates
+        up = R[:, 2]  # radar +z in camera coordinates
         cam_in_radar = -R.T @ t
         height = radar_height + cam_in_radar[2]
         pitch = np.rad2deg(np.arcsin(np.clip(-up[2], -1, 1)))
-        roll = np.rad2deg(np.arctan2(up[0], -up[1]))    # up = (sin r cos p, -cos r cos p, -sin p)
+        roll = np.rad2deg(np.arctan2(up[0], -up[1]))  # up = (sin r cos p, -cos r cos p, -sin p)
         return cls(float(height), float(pitch), float(roll))
 
 
@@ -70,16 +70,17 @@ class DepthConfig:
     model_rel_sigma: float = 0.1
 
 
-def _centre_distance(u: np.ndarray, v: np.ndarray, Kinv: np.ndarray, up: np.ndarray, h: float,
-                     cfg: DepthConfig) -> np.ndarray:
+def _centre_distance(
+    u: np.ndarray, v: np.ndarray, Kinv: np.ndarray, up: np.ndarray, h: float, cfg: DepthConfig
+) -> np.ndarray:
     """Camera-to-vehicle-centre distance for bottom-centre pixels (u, v); NaN where the ray
     misses the road within max_range."""
-    rays = np.stack([u, v, np.ones_like(u)], axis=1) @ Kinv.T          # (M, 3)
+    rays = np.stack([u, v, np.ones_like(u)], axis=1) @ Kinv.T  # (M, 3)
     denom = rays @ up
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.where(denom < -1e-9, -h / denom, np.nan)
     contact = rays * s[:, None]
-    horiz = contact - np.outer(contact @ up, up)                       # component in the road plane
+    horiz = contact - np.outer(contact @ up, up)  # component in the road plane
     norm = np.linalg.norm(horiz, axis=1, keepdims=True)
     with np.errstate(divide="ignore", invalid="ignore"):
         centre = contact + horiz / norm * cfg.center_offset + up * (cfg.vehicle_height / 2)
@@ -87,9 +88,13 @@ def _centre_distance(u: np.ndarray, v: np.ndarray, Kinv: np.ndarray, up: np.ndar
     return np.where(np.linalg.norm(contact, axis=1) <= cfg.max_range, d, np.nan)
 
 
-def ground_plane_depth(boxes: np.ndarray, K: np.ndarray, ground: GroundPlane,
-                       image_size: tuple[int, int] | None = None,
-                       config: DepthConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+def ground_plane_depth(
+    boxes: np.ndarray,
+    K: np.ndarray,
+    ground: GroundPlane,
+    image_size: tuple[int, int] | None = None,
+    config: DepthConfig | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Depth (m, camera to vehicle centre) and its 1-sigma uncertainty (m) per box.
 
     boxes: (M, >=4) u1, v1, u2, v2 in *undistorted* pixels; K: (3, 3) intrinsics;
@@ -110,7 +115,7 @@ def ground_plane_depth(boxes: np.ndarray, K: np.ndarray, ground: GroundPlane,
     d_v = _centre_distance(u, v + cfg.sigma_px, Kinv, up, h, cfg)
     tilted = GroundPlane(h, ground.pitch_deg + cfg.sigma_pitch_deg, ground.roll_deg).up()
     d_p = _centre_distance(u, v, Kinv, tilted, h, cfg)
-    sigma = np.sqrt(np.nan_to_num(d_v - d) ** 2 + np.nan_to_num(d_p - d) ** 2 + cfg.sigma_offset ** 2)
+    sigma = np.sqrt(np.nan_to_num(d_v - d) ** 2 + np.nan_to_num(d_p - d) ** 2 + cfg.sigma_offset**2)
     # Size prior where the ground plane gives nothing usable.
     box_h = np.maximum(b[:, 3] - b[:, 1], 1.0)
     prior = K[1, 1] * cfg.vehicle_height / box_h
@@ -126,4 +131,6 @@ def ground_plane_depth(boxes: np.ndarray, K: np.ndarray, ground: GroundPlane,
 def model_depth_sigma(depth: np.ndarray, config: DepthConfig | None = None) -> np.ndarray:
     """1-sigma uncertainty (m) assigned to a depth the model predicted: a fixed fraction of it."""
     cfg = config or DepthConfig()
-    return (np.abs(np.asarray(depth, np.float32)) * np.float32(cfg.model_rel_sigma)).astype(np.float32)
+    return (np.abs(np.asarray(depth, np.float32)) * np.float32(cfg.model_rel_sigma)).astype(
+        np.float32
+    )

@@ -18,8 +18,13 @@ HUE_BINS, SAT_BINS, VAL_BINS = 16, 8, 8
 assert HUE_BINS + SAT_BINS + VAL_BINS == DESCRIPTOR_DIM
 
 #: Descriptor of a box with no pixel (uniform in each group).
-UNIFORM_DESCRIPTOR = np.concatenate([np.full(HUE_BINS, 1 / HUE_BINS), np.full(SAT_BINS, 1 / SAT_BINS),
-                                     np.full(VAL_BINS, 1 / VAL_BINS)]).astype(np.float32)
+UNIFORM_DESCRIPTOR = np.concatenate(
+    [
+        np.full(HUE_BINS, 1 / HUE_BINS),
+        np.full(SAT_BINS, 1 / SAT_BINS),
+        np.full(VAL_BINS, 1 / VAL_BINS),
+    ]
+).astype(np.float32)
 
 # Bin index per 8-bit channel value: hue 0..179 -> 0..15, saturation/value 0..255 -> 0..7.
 _HUE_CODE = np.minimum(np.arange(256) * HUE_BINS // 180, HUE_BINS - 1).astype(np.uint8)
@@ -40,12 +45,20 @@ def clip_boxes(boxes: np.ndarray, width: int, height: int) -> np.ndarray:
     y0 = np.clip(np.floor(np.minimum(b[:, 1], b[:, 3])), 0, height)
     y1 = np.clip(np.ceil(b[:, 3]), 0, height)
     out = np.stack([x0, y0, x1, y1], axis=1).astype(np.int64)
-    empty = ~finite | (b[:, 2] <= b[:, 0]) | (b[:, 3] <= b[:, 1]) | (out[:, 2] <= out[:, 0]) | (out[:, 3] <= out[:, 1])
+    empty = (
+        ~finite
+        | (b[:, 2] <= b[:, 0])
+        | (b[:, 3] <= b[:, 1])
+        | (out[:, 2] <= out[:, 0])
+        | (out[:, 3] <= out[:, 1])
+    )
     out[empty] = 0
     return out
 
 
-def hsv_descriptor(image_bgr: np.ndarray, boxes: np.ndarray, max_pixels: int | None = None) -> np.ndarray:
+def hsv_descriptor(
+    image_bgr: np.ndarray, boxes: np.ndarray, max_pixels: int | None = None
+) -> np.ndarray:
     """HSV-histogram appearance descriptor per box (DESIGN.md "Conventions").
 
     image_bgr: uint8 (H, W, 3) BGR image (OpenCV order); a (H, W) grey image is accepted too.
@@ -84,13 +97,17 @@ def hsv_descriptor(image_bgr: np.ndarray, boxes: np.ndarray, max_pixels: int | N
         hsv = cv2.cvtColor(np.ascontiguousarray(crop), cv2.COLOR_BGR2HSV)
         n = float(hsv.shape[0] * hsv.shape[1])
         out[i, :HUE_BINS] = cv2.calcHist([hsv], [0], None, [HUE_BINS], [0, 180]).ravel() / n
-        out[i, HUE_BINS:HUE_BINS + SAT_BINS] = cv2.calcHist([hsv], [1], None, [SAT_BINS], [0, 256]).ravel() / n
-        out[i, HUE_BINS + SAT_BINS:] = cv2.calcHist([hsv], [2], None, [VAL_BINS], [0, 256]).ravel() / n
+        out[i, HUE_BINS : HUE_BINS + SAT_BINS] = (
+            cv2.calcHist([hsv], [1], None, [SAT_BINS], [0, 256]).ravel() / n
+        )
+        out[i, HUE_BINS + SAT_BINS :] = (
+            cv2.calcHist([hsv], [2], None, [VAL_BINS], [0, 256]).ravel() / n
+        )
     return out
 
 
 def hsv_descriptor_reference(image_bgr: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """Slow, obviously-correct numpy version of `hsv_descriptor` (for tests and as the definition)."""
+    """Slow, obviously correct numpy version of `hsv_descriptor` (tests; the definition)."""
     import cv2
 
     img = np.asarray(image_bgr)

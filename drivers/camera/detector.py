@@ -17,7 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.camera.decode import KINDS, Decoded, decode_centernet, decode_yolov5, decode_yolov8, suppress
+from drivers.camera.decode import (
+    KINDS,
+    Decoded,
+    decode_centernet,
+    decode_yolov5,
+    decode_yolov8,
+    suppress,
+)
 from drivers.camera.errors import ModelError
 from mmatch.errors import ConfigError
 
@@ -81,10 +88,14 @@ class DetectorConfig:
         if self.threads < 1:
             raise ConfigError(f"detector.threads: {self.threads} must be >= 1")
         if self.input_size is not None and (len(self.input_size) != 2 or min(self.input_size) < 8):
-            raise ConfigError(f"detector.input_size: {self.input_size} must be (width, height) >= 8 px")
+            raise ConfigError(
+                f"detector.input_size: {self.input_size} must be (width, height) >= 8 px"
+            )
         if self.depth_index is not None and self.num_classes is None and self.kind != "centernet":
-            raise ConfigError("detector.depth_index: set detector.num_classes too, so the depth "
-                              "column is not read as a class")
+            raise ConfigError(
+                "detector.depth_index: set detector.num_classes too, so the depth "
+                "column is not read as a class"
+            )
 
     @classmethod
     def from_dict(cls, d: dict) -> DetectorConfig:
@@ -92,7 +103,9 @@ class DetectorConfig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
-            raise ConfigError(f"detector: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+            raise ConfigError(
+                f"detector: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+            )
         if "model" not in d:
             raise ConfigError("detector.model: missing (path of the .onnx file)")
         kw = dict(d)
@@ -136,11 +149,15 @@ class OnnxDetector:
     def _load(self):
         cfg = self.config
         if not self.path.is_file():
-            raise ModelError(str(self.path), f"no such model file; expected an ONNX {cfg.kind} detector")
+            raise ModelError(
+                str(self.path), f"no such model file; expected an ONNX {cfg.kind} detector"
+            )
         try:
             import onnxruntime as ort
         except ImportError as exc:  # pragma: no cover - onnxruntime is a runtime dependency
-            raise ModelError(str(self.path), "onnxruntime is not installed (pip install onnxruntime)") from exc
+            raise ModelError(
+                str(self.path), "onnxruntime is not installed (pip install onnxruntime)"
+            ) from exc
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = cfg.threads
         opts.inter_op_num_threads = 1
@@ -149,40 +166,63 @@ class OnnxDetector:
         try:
             return ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own Fail/InvalidGraph/... types
-            raise ModelError(str(self.path), f"not a loadable ONNX model ({type(exc).__name__}: "
-                                             f"{str(exc).splitlines()[0] if str(exc) else ''})") from exc
+            raise ModelError(
+                str(self.path),
+                f"not a loadable ONNX model ({type(exc).__name__}: "
+                f"{str(exc).splitlines()[0] if str(exc) else ''})",
+            ) from exc
 
     def _check_input(self) -> tuple[str, np.dtype, tuple[int, int]]:
         cfg = self.config
         inputs = self._session.get_inputs()
         expected = "one image input of shape (1, 3, H, W) (NCHW, 3 channels)"
         if len(inputs) != 1:
-            raise ModelError(str(self.path), f"expected {expected}; model has {len(inputs)} inputs "
-                                             f"{[i.name for i in inputs]}")
+            raise ModelError(
+                str(self.path),
+                f"expected {expected}; model has {len(inputs)} inputs {[i.name for i in inputs]}",
+            )
         inp = inputs[0]
         shape = list(inp.shape)
         if len(shape) != 4:
-            raise ModelError(str(self.path), f"expected {expected}; input {inp.name!r} has shape {shape}")
+            raise ModelError(
+                str(self.path), f"expected {expected}; input {inp.name!r} has shape {shape}"
+            )
         if isinstance(shape[1], int) and shape[1] != 3:
             hint = " (looks like NHWC; export the model as NCHW)" if shape[3] == 3 else ""
-            raise ModelError(str(self.path), f"expected {expected}; input {inp.name!r} has shape {shape}{hint}")
+            raise ModelError(
+                str(self.path), f"expected {expected}; input {inp.name!r} has shape {shape}{hint}"
+            )
         if isinstance(shape[0], int) and shape[0] != 1:
-            raise ModelError(str(self.path), f"expected {expected}; input {inp.name!r} has batch {shape[0]}")
-        dtypes = {"tensor(float)": np.float32, "tensor(float16)": np.float16, "tensor(uint8)": np.uint8}
+            raise ModelError(
+                str(self.path), f"expected {expected}; input {inp.name!r} has batch {shape[0]}"
+            )
+        dtypes = {
+            "tensor(float)": np.float32,
+            "tensor(float16)": np.float16,
+            "tensor(uint8)": np.uint8,
+        }
         if inp.type not in dtypes:
-            raise ModelError(str(self.path), f"expected a float32, float16 or uint8 input; "
-                                             f"input {inp.name!r} is {inp.type}")
+            raise ModelError(
+                str(self.path),
+                f"expected a float32, float16 or uint8 input; input {inp.name!r} is {inp.type}",
+            )
         h, w = shape[2], shape[3]
         static = isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0
         if static:
             if cfg.input_size is not None and tuple(cfg.input_size) != (w, h):
-                raise ModelError(str(self.path), f"detector.input_size {tuple(cfg.input_size)} (w, h) "
-                                                 f"does not match the model input {(w, h)}")
+                raise ModelError(
+                    str(self.path),
+                    f"detector.input_size {tuple(cfg.input_size)} (w, h) "
+                    f"does not match the model input {(w, h)}",
+                )
             size = (w, h)
         else:
             if cfg.input_size is None:
-                raise ModelError(str(self.path), f"input {inp.name!r} has dynamic size {shape}; "
-                                                 "set detector.input_size = [width, height]")
+                raise ModelError(
+                    str(self.path),
+                    f"input {inp.name!r} has dynamic size {shape}; "
+                    "set detector.input_size = [width, height]",
+                )
             size = tuple(cfg.input_size)
         return inp.name, np.dtype(dtypes[inp.type]), size
 
@@ -194,9 +234,12 @@ class OnnxDetector:
         try:
             outs = self._session.run(None, {self._input_name: blank})
         except Exception as exc:
-            raise ModelError(str(self.path), f"dry run on a blank (1, 3, {h}, {w}) input failed: "
-                                             f"{type(exc).__name__}: {str(exc).splitlines()[0]}") from exc
-        shapes = {n: tuple(o.shape) for n, o in zip(self._output_names, outs)}
+            raise ModelError(
+                str(self.path),
+                f"dry run on a blank (1, 3, {h}, {w}) input failed: "
+                f"{type(exc).__name__}: {str(exc).splitlines()[0]}",
+            ) from exc
+        shapes = {n: tuple(o.shape) for n, o in zip(self._output_names, outs, strict=True)}
         if cfg.kind in ("yolov5", "yolov8"):
             self._check_yolo(shapes)
         else:
@@ -204,32 +247,44 @@ class OnnxDetector:
         log.info("detector %s: kind %s, input %dx%d, outputs %s", self.path, cfg.kind, w, h, shapes)
 
     def _fail(self, expected: str, shapes: dict) -> ModelError:
-        return ModelError(str(self.path), f"output layout: expected {expected} for kind={self.config.kind!r}; "
-                                          f"model outputs {shapes}")
+        return ModelError(
+            str(self.path),
+            f"output layout: expected {expected} for kind={self.config.kind!r}; "
+            f"model outputs {shapes}",
+        )
 
     def _check_yolo(self, shapes: dict) -> None:
         cfg = self.config
         v5 = cfg.kind == "yolov5"
         fixed = 5 if v5 else 4
-        expected = "one output (1, N, 5 + C) (cx, cy, w, h, obj, classes)" if v5 else \
-            "one output (1, 4 + C, N) (cx, cy, w, h, classes)"
+        expected = (
+            "one output (1, N, 5 + C) (cx, cy, w, h, obj, classes)"
+            if v5
+            else "one output (1, 4 + C, N) (cx, cy, w, h, classes)"
+        )
         if len(shapes) != 1:
             raise self._fail(expected, shapes)
         shape = next(iter(shapes.values()))
         if len(shape) != 3 or shape[0] != 1:
             raise self._fail(expected, shapes)
         width, n = (shape[2], shape[1]) if v5 else (shape[1], shape[2])
-        if width < fixed + 1 or width > n:     # a detector has far more anchors than values per anchor
+        if width < fixed + 1 or width > n:  # a detector has far more anchors than values per anchor
             other = "yolov8" if v5 else "yolov5"
             hint = f" (that is the transposed layout: is it a {other} model?)" if width > n else ""
-            raise ModelError(str(self.path), f"output layout: expected {expected} for kind={cfg.kind!r}; "
-                                             f"model outputs {shapes}{hint}")
+            raise ModelError(
+                str(self.path),
+                f"output layout: expected {expected} for kind={cfg.kind!r}; "
+                f"model outputs {shapes}{hint}",
+            )
         nc = width - fixed if cfg.num_classes is None else cfg.num_classes
         if cfg.num_classes is not None and fixed + cfg.num_classes > width:
             raise self._fail(f"{expected} with C = num_classes = {cfg.num_classes}", shapes)
         if cfg.depth_index is not None and not fixed + nc <= cfg.depth_index < width:
-            raise self._fail(f"{expected} plus a depth column at depth_index {cfg.depth_index} "
-                             f"(after the {nc} class columns)", shapes)
+            raise self._fail(
+                f"{expected} plus a depth column at depth_index {cfg.depth_index} "
+                f"(after the {nc} class columns)",
+                shapes,
+            )
         if cfg.classes is not None and (min(cfg.classes) < 0 or max(cfg.classes) >= nc):
             raise self._fail(f"{expected} with classes {cfg.classes} < C", shapes)
         self.num_classes = nc
@@ -241,8 +296,11 @@ class OnnxDetector:
     def _check_centernet(self, shapes: dict) -> None:
         cfg = self.config
         hm, wh, reg, dep = self._heads(shapes)
-        expected = (f"outputs named {cfg.centernet_heads[:2]} (heatmap (1, C, h, w), size (1, 2, h, w)) and "
-                    f"optionally {cfg.centernet_heads[2:]} (offset (1, 2, h, w), depth (1, 1, h, w))")
+        expected = (
+            f"outputs named {cfg.centernet_heads[:2]} (heatmap (1, C, h, w), size (1, 2, h, w)) "
+            "and "
+            f"optionally {cfg.centernet_heads[2:]} (offset (1, 2, h, w), depth (1, 1, h, w))"
+        )
         if hm is None or wh is None:
             raise self._fail(expected, shapes)
         s_hm = shapes[hm]
@@ -254,10 +312,14 @@ class OnnxDetector:
                 raise self._fail(expected, shapes)
         w, h = self.input_size
         if w / hw[1] != h / hw[0]:
-            raise self._fail(f"{expected} with the same stride in x and y (input {w}x{h}, map {hw[1]}x{hw[0]})",
-                             shapes)
+            raise self._fail(
+                f"{expected} with the same stride in x and y (input {w}x{h}, map {hw[1]}x{hw[0]})",
+                shapes,
+            )
         self.num_classes = s_hm[1]
-        if cfg.classes is not None and (min(cfg.classes) < 0 or max(cfg.classes) >= self.num_classes):
+        if cfg.classes is not None and (
+            min(cfg.classes) < 0 or max(cfg.classes) >= self.num_classes
+        ):
             raise self._fail(f"{expected} with classes {cfg.classes} < C", shapes)
         self.stride = w / hw[1]
         self._head_names = (hm, wh, reg, dep)
@@ -276,7 +338,7 @@ class OnnxDetector:
             resized = cv2.resize(image_bgr, (nw, nh), interpolation=cv2.INTER_LINEAR)
             px, py = (w - nw) // 2, (h - nh) // 2
             canvas = np.full((h, w, 3), cfg.pad_value, np.uint8)
-            canvas[py:py + nh, px:px + nw] = resized
+            canvas[py : py + nh, px : px + nw] = resized
             lb = Letterbox(nw / W, nh / H, float(px), float(py))
         else:
             canvas = cv2.resize(image_bgr, (w, h), interpolation=cv2.INTER_LINEAR)
@@ -288,21 +350,39 @@ class OnnxDetector:
             return chw, lb
         x = chw.astype(np.float32) * np.float32(cfg.scale)
         if any(cfg.mean) or any(s != 1.0 for s in cfg.std):
-            x = (x - np.asarray(cfg.mean, np.float32)[:, None, None]) / np.asarray(cfg.std, np.float32)[:, None, None]
+            x = (x - np.asarray(cfg.mean, np.float32)[:, None, None]) / np.asarray(
+                cfg.std, np.float32
+            )[:, None, None]
         return x.astype(self._input_dtype, copy=False), lb
 
     def decode(self, outputs: list[np.ndarray]) -> Decoded:
         """Raw session outputs -> NMS-kept candidates in network-input px."""
         cfg = self.config
         if cfg.kind == "centernet":
-            by_name = dict(zip(self._output_names, outputs))
+            by_name = dict(zip(self._output_names, outputs, strict=True))
             hm, wh, reg, dep = (by_name[n] if n else None for n in self._head_names)
-            dec = decode_centernet(hm, wh, reg, dep, self.stride, cfg.score_threshold, cfg.classes,
-                                   cfg.centernet_sigmoid, cfg.centernet_depth_is_metres, cfg.pre_nms_top_k)
+            dec = decode_centernet(
+                hm,
+                wh,
+                reg,
+                dep,
+                self.stride,
+                cfg.score_threshold,
+                cfg.classes,
+                cfg.centernet_sigmoid,
+                cfg.centernet_depth_is_metres,
+                cfg.pre_nms_top_k,
+            )
         else:
             fn = decode_yolov5 if cfg.kind == "yolov5" else decode_yolov8
-            dec = fn(outputs[0], cfg.score_threshold, cfg.classes, cfg.num_classes, cfg.depth_index,
-                     cfg.pre_nms_top_k)
+            dec = fn(
+                outputs[0],
+                cfg.score_threshold,
+                cfg.classes,
+                cfg.num_classes,
+                cfg.depth_index,
+                cfg.pre_nms_top_k,
+            )
         return suppress(dec, cfg.iou_threshold, cfg.agnostic_nms, cfg.max_detections)
 
     def detect(self, image_bgr: np.ndarray) -> Decoded:

@@ -6,7 +6,8 @@ from mmatch.errors import ConfigError, DeviceError, MMatchError
 
 
 class ModelError(ConfigError):
-    """A detector model is missing or incompatible; the message names the file and what was expected."""
+    """A detector model is missing or incompatible; the message names the file and what was
+    expected."""
 
     def __init__(self, path: str, reason: str) -> None:
         super().__init__(f"{path}: {reason}")

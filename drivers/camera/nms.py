@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-_MATRIX_MAX = 512   # up to this many candidates NMS uses one (K, K) IoU matrix
+_MATRIX_MAX = 512  # up to this many candidates NMS uses one (K, K) IoU matrix
 
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -21,8 +21,13 @@ def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.where(union > 0, inter / union, 0.0)
 
 
-def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float = 0.45,
-        classes: np.ndarray | None = None, max_detections: int = 100) -> np.ndarray:
+def nms(
+    boxes: np.ndarray,
+    scores: np.ndarray,
+    iou_threshold: float = 0.45,
+    classes: np.ndarray | None = None,
+    max_detections: int = 100,
+) -> np.ndarray:
     """Greedy NMS. Returns int64 indices of the kept boxes, highest score first.
 
     boxes: (K, 4) x1, y1, x2, y2; scores: (K,); classes: optional (K,) ints — when given,
@@ -51,7 +56,7 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float = 0.45,
             keep_sorted.append(i)
             if len(keep_sorted) >= max_detections:
                 break
-            alive[i + 1:] &= ~over[i, i + 1:]
+            alive[i + 1 :] &= ~over[i, i + 1 :]
         return order[np.asarray(keep_sorted, np.int64)]
     x1, y1, x2, y2 = boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3]
     area = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)

@@ -39,8 +39,11 @@ class CameraDetections(Detections):
 
 
 def empty_camera_detections(stamp: float) -> CameraDetections:
-    return CameraDetections(boxes=np.zeros((0, 6), np.float32), features=np.zeros((0, DESCRIPTOR_DIM), np.float32),
-                            stamp=stamp)
+    return CameraDetections(
+        boxes=np.zeros((0, 6), np.float32),
+        features=np.zeros((0, DESCRIPTOR_DIM), np.float32),
+        stamp=stamp,
+    )
 
 
 @dataclass
@@ -53,14 +56,23 @@ class FrameCounters:
     skipped_size: int = 0
 
     def as_dict(self) -> dict[str, int]:
-        return {"frames": self.frames, "detections": self.detections,
-                "skipped_type": self.skipped_type, "skipped_size": self.skipped_size}
+        return {
+            "frames": self.frames,
+            "detections": self.detections,
+            "skipped_type": self.skipped_type,
+            "skipped_size": self.skipped_size,
+        }
 
 
 def check_frame(image: object, image_size: tuple[int, int] | None) -> str | None:
     """Why a frame must be skipped ("type" or "size"), or None when it is a usable
     uint8 (H, W, 3) BGR image of the calibrated (width, height)."""
-    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+    if (
+        not isinstance(image, np.ndarray)
+        or image.dtype != np.uint8
+        or image.ndim != 3
+        or image.shape[2] != 3
+    ):
         return "type"
     if image_size is not None and (image.shape[1], image.shape[0]) != tuple(image_size):
         return "size"
@@ -80,9 +92,15 @@ class DetectionStage:
         (painted vehicles; 0 on uniform boxes), below what two cameras' lighting differs by.
     """
 
-    def __init__(self, detect, calibration: Calibration, ground: GroundPlane | None = None,
-                 radar_height: float | None = None, depth: DepthConfig | None = None,
-                 descriptor_max_pixels: int | None = DEFAULT_DESCRIPTOR_MAX_PIXELS) -> None:
+    def __init__(
+        self,
+        detect,
+        calibration: Calibration,
+        ground: GroundPlane | None = None,
+        radar_height: float | None = None,
+        depth: DepthConfig | None = None,
+        descriptor_max_pixels: int | None = DEFAULT_DESCRIPTOR_MAX_PIXELS,
+    ) -> None:
         self._detect = detect
         self.calibration = calibration
         self.ground = ground or calibration.ground_plane(radar_height)
@@ -99,14 +117,30 @@ class DetectionStage:
                 self.counters.skipped_type += 1
             else:
                 self.counters.skipped_size += 1
+            skipped = self.counters.skipped_type + self.counters.skipped_size
             shape = getattr(image, "shape", None)
             dtype = getattr(image, "dtype", type(image).__name__)
-            log.debug("skipping frame at %.3f: wrong %s (%s %s, expected uint8 %s x 3)", stamp, why, shape, dtype,
-                      self.calibration.image_size)
+            # the first skip and then every 100th at WARNING (a camera that ignores the requested
+            # resolution would otherwise fail silently), the rest at DEBUG
+            level = logging.WARNING if skipped == 1 or skipped % 100 == 0 else logging.DEBUG
+            log.log(
+                level,
+                "skipping frame at %.3f (%d skipped so far): wrong %s: got %s %s, expected uint8 "
+                "(%d, %d, 3) as calibrated",
+                stamp,
+                skipped,
+                why,
+                shape,
+                dtype,
+                self.calibration.image_size[1],
+                self.calibration.image_size[0],
+            )
             return None
         return self.process_decoded(image, self._detect(image), stamp)
 
-    def process_decoded(self, image: np.ndarray | None, dec: Decoded, stamp: float) -> CameraDetections:
+    def process_decoded(
+        self, image: np.ndarray | None, dec: Decoded, stamp: float
+    ) -> CameraDetections:
         """Descriptors, undistortion and depth for boxes already detected in `image` (image px)."""
         m = len(dec)
         self.counters.detections += m
@@ -116,6 +150,7 @@ class DetectionStage:
             feats = hsv_descriptor(image, dec.boxes, self.descriptor_max_pixels)
         else:
             from drivers.camera.descriptor import UNIFORM_DESCRIPTOR
+
             feats = np.tile(UNIFORM_DESCRIPTOR, (m, 1))
         und = self.calibration.undistort_boxes(dec.boxes[:, :4])
         if dec.depth is not None and np.isfinite(dec.depth).all():
@@ -123,18 +158,27 @@ class DetectionStage:
             sigma = model_depth_sigma(depth, self.depth_config)
             source = "model"
         elif self.ground is not None:
-            depth, sigma = ground_plane_depth(und, self.calibration.K, self.ground, self.calibration.image_size,
-                                              self.depth_config)
+            depth, sigma = ground_plane_depth(
+                und, self.calibration.K, self.ground, self.calibration.image_size, self.depth_config
+            )
             source = "ground"
         else:
             # No road plane known: the size prior alone (vehicle height over box height).
             h = np.maximum(und[:, 3] - und[:, 1], 1.0)
-            depth = (self.calibration.K[1, 1] * self.depth_config.vehicle_height / h).astype(np.float32)
+            depth = (self.calibration.K[1, 1] * self.depth_config.vehicle_height / h).astype(
+                np.float32
+            )
             sigma = (depth * self.depth_config.size_prior_rel_sigma).astype(np.float32)
             source = "size"
         boxes = np.empty((m, 6), np.float32)
         boxes[:, :4] = und
         boxes[:, 4] = dec.scores
         boxes[:, 5] = depth
-        return CameraDetections(boxes=boxes, features=feats, stamp=stamp, depth_sigma=sigma.astype(np.float32),
-                                classes=dec.classes.astype(np.int32), depth_source=source)
+        return CameraDetections(
+            boxes=boxes,
+            features=feats,
+            stamp=stamp,
+            depth_sigma=sigma.astype(np.float32),
+            classes=dec.classes.astype(np.int32),
+            depth_source=source,
+        )

@@ -12,8 +12,7 @@ Two modes:
   int8 with ranges calibrated on representative BGR images (a few dozen frames of the user's
   own camera), preprocessed exactly as the detector does. The usual choice for conv detectors.
 
-Command line equivalent for dynamic mode:
-    python -c "from drivers.camera.quantize import quantize_detector as q; q('yolov8n.onnx', 'yolov8n.int8.onnx')"
+Command line: `python -m drivers.camera quantize yolov8n.onnx yolov8n.int8.onnx [--images ...]`.
 """
 
 from __future__ import annotations
@@ -28,7 +27,9 @@ from drivers.camera.errors import ModelError
 
 log = logging.getLogger(__name__)
 
-INSTALL_HINT = "INT8 quantization needs the 'onnx' package: pip install onnx (or pip install 'mmatch[train]')"
+INSTALL_HINT = (
+    "INT8 quantization needs the 'onnx' package: pip install onnx (or pip install 'mmatch[train]')"
+)
 
 
 def _quantization_module():
@@ -40,8 +41,14 @@ def _quantization_module():
     return quantization
 
 
-def quantize_detector(src: str | Path, dst: str | Path, *, calibration_images: Iterable[np.ndarray] | None = None,
-                      detector_config=None, per_channel: bool = True) -> Path:
+def quantize_detector(
+    src: str | Path,
+    dst: str | Path,
+    *,
+    calibration_images: Iterable[np.ndarray] | None = None,
+    detector_config=None,
+    per_channel: bool = True,
+) -> Path:
     """Write an INT8 version of the ONNX model `src` to `dst` and return `dst`.
 
     calibration_images: BGR uint8 images for static QDQ quantization (None: dynamic).
@@ -53,7 +60,9 @@ def quantize_detector(src: str | Path, dst: str | Path, *, calibration_images: I
         raise ModelError(str(src), "no such model file to quantize")
     q = _quantization_module()
     if calibration_images is None:
-        q.quantize_dynamic(str(src), str(dst), weight_type=q.QuantType.QInt8, per_channel=per_channel)
+        q.quantize_dynamic(
+            str(src), str(dst), weight_type=q.QuantType.QInt8, per_channel=per_channel
+        )
         log.info("quantized %s -> %s (dynamic int8)", src, dst)
         return dst
     from drivers.camera.detector import DetectorConfig, OnnxDetector
@@ -70,7 +79,14 @@ def quantize_detector(src: str | Path, dst: str | Path, *, calibration_images: I
         def get_next(self):
             return next(self._it, None)
 
-    q.quantize_static(str(src), str(dst), _Reader(), quant_format=q.QuantFormat.QDQ,
-                      activation_type=q.QuantType.QInt8, weight_type=q.QuantType.QInt8, per_channel=per_channel)
+    q.quantize_static(
+        str(src),
+        str(dst),
+        _Reader(),
+        quant_format=q.QuantFormat.QDQ,
+        activation_type=q.QuantType.QInt8,
+        weight_type=q.QuantType.QInt8,
+        per_channel=per_channel,
+    )
     log.info("quantized %s -> %s (static QDQ int8, %d calibration images)", src, dst, len(inputs))
     return dst

@@ -6,7 +6,8 @@ rate-limited), closes it, waits with exponential backoff (`backoff_s` doubling u
 `max_backoff_s`, reset after a good frame) and opens a fresh one. The caller (the radar loop)
 only ever sees `read(timeout)` / `latest(max_age)`, which return detections or None and never
 raise. A `ConfigError` (wrong model or calibration) is not retried: the state becomes
-"failed" and `last_error` says why. Skipped frames (wrong size/type) are counted by the source and reported in `counters()`.
+"failed" and `last_error` says why. Skipped frames (wrong size/type) are counted by the
+source and reported in `counters()`.
 """
 
 from __future__ import annotations
@@ -31,9 +32,17 @@ class ResilientCamera:
     camera: the CameraModel to report before the first successful open (optional).
     """
 
-    def __init__(self, factory: Callable[[], CameraSource], *, backoff_s: float = 0.5, max_backoff_s: float = 10.0,
-                 read_timeout_s: float = 0.2, camera: CameraModel | None = None, name: str = "camera",
-                 report_every_s: float = 30.0) -> None:
+    def __init__(
+        self,
+        factory: Callable[[], CameraSource],
+        *,
+        backoff_s: float = 0.5,
+        max_backoff_s: float = 10.0,
+        read_timeout_s: float = 0.2,
+        camera: CameraModel | None = None,
+        name: str = "camera",
+        report_every_s: float = 30.0,
+    ) -> None:
         self._factory = factory
         self.backoff_s, self.max_backoff_s = backoff_s, max_backoff_s
         self.read_timeout_s = read_timeout_s
@@ -42,11 +51,11 @@ class ResilientCamera:
         self._camera = camera
         self._cond = threading.Condition()
         self._latest: Detections | None = None
-        self._seq = 0                 # detections received so far
-        self._read_seq = 0            # last one handed out by read()
+        self._seq = 0  # detections received so far
+        self._read_seq = 0  # last one handed out by read()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self.state = "idle"           # idle | running | reconnecting | finished | failed | closed
+        self.state = "idle"  # idle | running | reconnecting | finished | failed | closed
         self.last_error = ""
         self._counts = {"opens": 0, "failures": 0, "frames": 0, "none": 0}
         self._source_counters: dict[str, int] = {}
@@ -55,7 +64,9 @@ class ResilientCamera:
     # ---- lifecycle ------------------------------------------------------------------------
     def start(self) -> ResilientCamera:
         if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name=f"{self.name}-reader", daemon=True)
+            self._thread = threading.Thread(
+                target=self._run, name=f"{self.name}-reader", daemon=True
+            )
             self._thread.start()
         return self
 
@@ -86,7 +97,11 @@ class ResilientCamera:
         Never raises."""
         deadline = time.monotonic() + max(timeout, 0.0)
         with self._cond:
-            while self._seq == self._read_seq and not self._stop.is_set() and self.state not in ("finished", "failed"):
+            while (
+                self._seq == self._read_seq
+                and not self._stop.is_set()
+                and self.state not in ("finished", "failed")
+            ):
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return None
@@ -130,7 +145,7 @@ class ResilientCamera:
                 self._counts["opens"] += 1
                 try:
                     self._camera = source.camera
-                except Exception as exc:      # a camera model we cannot read is not fatal to reading
+                except Exception as exc:  # a camera model we cannot read is not fatal to reading
                     log.debug("%s: no camera model yet: %s", self.name, exc)
                 self.state = "running"
                 if self._counts["opens"] > 1:
@@ -153,7 +168,9 @@ class ResilientCamera:
                 with self._cond:
                     self._cond.notify_all()
                 return
-            except ConfigError as exc:        # a wrong model/calibration will not fix itself: stop, say why
+            except (
+                ConfigError
+            ) as exc:  # a wrong model/calibration will not fix itself: stop, say why
                 self._counts["failures"] += 1
                 self.last_error = f"{type(exc).__name__}: {exc}"
                 self.state = "failed"
@@ -161,12 +178,14 @@ class ResilientCamera:
                 with self._cond:
                     self._cond.notify_all()
                 return
-            except Exception as exc:          # DeviceError or anything else: report, back off, retry
+            except Exception as exc:  # DeviceError or anything else: report, back off, retry
                 self._counts["failures"] += 1
                 self.last_error = f"{type(exc).__name__}: {exc}"
                 self.state = "reconnecting"
                 kind = "failed" if isinstance(exc, MMatchError) else "failed unexpectedly"
-                self._report("%s %s (%s); retrying in %.2f s", self.name, kind, self.last_error, delay)
+                self._report(
+                    "%s %s (%s); retrying in %.2f s", self.name, kind, self.last_error, delay
+                )
             finally:
                 if source is not None:
                     try:

@@ -7,7 +7,9 @@ from drivers.camera.nms import box_iou, nms
 
 def _xyxy_to_cxcywh(b):
     b = np.asarray(b, np.float32)
-    return np.stack([(b[:, 0] + b[:, 2]) / 2, (b[:, 1] + b[:, 3]) / 2, b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]], 1)
+    return np.stack(
+        [(b[:, 0] + b[:, 2]) / 2, (b[:, 1] + b[:, 3]) / 2, b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]], 1
+    )
 
 
 TRUE = np.array([[100, 120, 220, 200], [300, 310, 420, 400], [500, 50, 600, 90]], np.float32)
@@ -21,12 +23,12 @@ def yolov8_output(n_anchors=400, nc=8, seed=0, extra=None):
     d = 4 + nc + (0 if extra is None else 1)
     out = np.zeros((d, n_anchors), np.float32)
     out[:4] = _xyxy_to_cxcywh(rng.uniform(0, 600, (n_anchors, 4)).clip(0) + [[0, 0, 20, 20]]).T
-    out[4:4 + nc] = rng.uniform(0, 0.1, (nc, n_anchors))
+    out[4 : 4 + nc] = rng.uniform(0, 0.1, (nc, n_anchors))
     idx = rng.choice(n_anchors, 6, replace=False)
-    for k, (b, c, s) in enumerate(zip(TRUE, CLS, SCORE)):
+    for k, (b, c, s) in enumerate(zip(TRUE, CLS, SCORE, strict=True)):
         out[:4, idx[k]] = _xyxy_to_cxcywh(b[None])[0]
         out[4 + c, idx[k]] = s
-        out[:4, idx[k + 3]] = _xyxy_to_cxcywh(b[None] + 3)[0]           # duplicate, IoU ~0.9
+        out[:4, idx[k + 3]] = _xyxy_to_cxcywh(b[None] + 3)[0]  # duplicate, IoU ~0.9
         out[4 + c, idx[k + 3]] = s - 0.1
         if extra is not None:
             out[-1, idx[k]] = extra[k]
@@ -62,7 +64,7 @@ def test_yolov5_decode_uses_objectness_times_class():
     rows[10, 4] = 0.95
     rows[10, 5:] = [0.1, 0.0, 0.8, 0.05]
     rows[11, :4] = _xyxy_to_cxcywh(TRUE[1:2])[0]
-    rows[11, 4] = 0.5                   # obj 0.5 x cls 0.9 = 0.45
+    rows[11, 4] = 0.5  # obj 0.5 x cls 0.9 = 0.45
     rows[11, 5:] = [0.0, 0.9, 0.1, 0.0]
     dec = suppress(decode_yolov5(rows[None], 0.3), 0.5)
     assert len(dec) == 2
@@ -87,13 +89,16 @@ def centernet_heads(logits=True):
     wh = np.zeros((1, 2, h, w), np.float32)
     reg = np.zeros((1, 2, h, w), np.float32)
     dep = np.zeros((1, 1, h, w), np.float32)
-    peaks = [(0, 10, 12, 0.9, 8.0, 5.0, 0.25, 0.5, 20.0), (2, 20, 30, 0.7, 6.0, 4.0, 0.75, 0.0, 35.0)]
+    peaks = [
+        (0, 10, 12, 0.9, 8.0, 5.0, 0.25, 0.5, 20.0),
+        (2, 20, 30, 0.7, 6.0, 4.0, 0.75, 0.0, 35.0),
+    ]
     for cls, y, x, s, bw, bh, ox, oy, d in peaks:
         hm[0, cls, y, x] = s
-        hm[0, cls, y, x + 1] = s - 0.2              # a neighbour: not a local max
+        hm[0, cls, y, x + 1] = s - 0.2  # a neighbour: not a local max
         wh[0, :, y, x] = (bw, bh)
         reg[0, :, y, x] = (ox, oy)
-        dep[0, 0, y, x] = np.log(1.0 / d)          # CenterNet: depth = 1/sigmoid(o) - 1  <=>  o = -log(d)
+        dep[0, 0, y, x] = np.log(1.0 / d)  # CenterNet: depth = 1/sigmoid(o) - 1  <=>  o = -log(d)
     if logits:
         hm = np.log(hm / (1 - hm))
     return hm, wh, reg, dep, peaks
@@ -106,7 +111,9 @@ def test_centernet_peaks_sizes_offsets_depth(logits):
     assert len(dec) == 2
     for k, (cls, y, x, s, bw, bh, ox, oy, d) in enumerate(peaks):
         cx, cy = (x + ox) * 4, (y + oy) * 4
-        np.testing.assert_allclose(dec.boxes[k], [cx - bw * 2, cy - bh * 2, cx + bw * 2, cy + bh * 2], atol=1e-3)
+        np.testing.assert_allclose(
+            dec.boxes[k], [cx - bw * 2, cy - bh * 2, cx + bw * 2, cy + bh * 2], atol=1e-3
+        )
         assert dec.classes[k] == cls
         assert dec.scores[k] == pytest.approx(s, abs=1e-5)
         assert dec.depth[k] == pytest.approx(d, rel=1e-4)
@@ -118,7 +125,9 @@ def test_nms_greedy_and_class_aware():
     boxes = np.array([[0, 0, 10, 10], [1, 1, 11, 11], [20, 20, 30, 30], [0, 0, 10, 10]], np.float32)
     scores = np.array([0.9, 0.8, 0.7, 0.6])
     np.testing.assert_array_equal(nms(boxes, scores, 0.5), [0, 2])
-    np.testing.assert_array_equal(nms(boxes, scores, 0.5, classes=np.array([0, 1, 0, 0])), [0, 1, 2])
+    np.testing.assert_array_equal(
+        nms(boxes, scores, 0.5, classes=np.array([0, 1, 0, 0])), [0, 1, 2]
+    )
     np.testing.assert_array_equal(nms(boxes, scores, 0.5, max_detections=1), [0])
     assert nms(np.zeros((0, 4)), np.zeros(0)).size == 0
     iou = box_iou(boxes[:1], boxes)

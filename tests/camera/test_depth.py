@@ -34,7 +34,9 @@ def test_uncertainty_grows_with_range_and_center_offset_adds():
     g = GroundPlane(1.5, 0.0)
     rows = 360 + 800 * 1.5 / np.array([5.0, 10.0, 20.0, 40.0])
     boxes = np.stack([np.full(4, 600), rows - 50, np.full(4, 680), rows], 1)
-    d0, s0 = ground_plane_depth(boxes, K, g, config=DepthConfig(center_offset=0.0, vehicle_height=0.0))
+    d0, s0 = ground_plane_depth(
+        boxes, K, g, config=DepthConfig(center_offset=0.0, vehicle_height=0.0)
+    )
     d1, s1 = ground_plane_depth(boxes, K, g)
     np.testing.assert_allclose(d0, np.hypot([5.0, 10.0, 20.0, 40.0], 1.5), rtol=1e-4)
     assert np.all(np.diff(s0) > 0)
@@ -45,7 +47,9 @@ def test_uncertainty_grows_with_range_and_center_offset_adds():
 
 def test_above_horizon_falls_back_to_size_prior():
     g = GroundPlane(1.5, 0.0)
-    box = np.array([[600, 300, 700, 350.0], [600, 100, 700, 360.0]])   # bottom above / at the horizon
+    box = np.array(
+        [[600, 300, 700, 350.0], [600, 100, 700, 360.0]]
+    )  # bottom above / at the horizon
     d, s = ground_plane_depth(box, K, g)
     cfg = DepthConfig()
     np.testing.assert_allclose(d, 800 * cfg.vehicle_height / np.array([50.0, 260.0]), rtol=1e-5)
@@ -64,7 +68,7 @@ def test_cut_off_box_gets_double_sigma_and_empty_input():
 
 def test_from_extrinsic_matches_explicit_plane():
     th = np.deg2rad(4.0)
-    R0 = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0.0]])          # radar (x r, y fwd, z up) -> camera
+    R0 = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0.0]])  # radar (x r, y fwd, z up) -> camera
     Rx = np.array([[1, 0, 0], [0, np.cos(th), -np.sin(th)], [0, np.sin(th), np.cos(th)]])
     R = Rx @ R0
     cam_in_radar = np.array([0.1, -0.2, 0.35])

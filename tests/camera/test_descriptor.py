@@ -1,13 +1,20 @@
 import numpy as np
 import pytest
 
-from drivers.camera.descriptor import (HUE_BINS, SAT_BINS, UNIFORM_DESCRIPTOR, clip_boxes, hsv_descriptor,
-                                       hsv_descriptor_reference)
+from drivers.camera.descriptor import (
+    HUE_BINS,
+    SAT_BINS,
+    UNIFORM_DESCRIPTOR,
+    clip_boxes,
+    hsv_descriptor,
+    hsv_descriptor_reference,
+)
+
 from .camera_synth import COLOURS, painted_scene
 
 
 def _groups(d):
-    return d[:, :HUE_BINS], d[:, HUE_BINS:HUE_BINS + SAT_BINS], d[:, HUE_BINS + SAT_BINS:]
+    return d[:, :HUE_BINS], d[:, HUE_BINS : HUE_BINS + SAT_BINS], d[:, HUE_BINS + SAT_BINS :]
 
 
 def test_matches_numpy_definition_on_random_image_and_boxes():
@@ -25,7 +32,7 @@ def test_matches_numpy_definition_on_random_image_and_boxes():
 
 def test_single_colour_box_fills_expected_bins():
     img = np.zeros((100, 100, 3), np.uint8)
-    img[:, :] = (200, 60, 30)               # saturated blue: H = 120 (bin 10), S = 218 (bin 6), V = 200 (bin 6)
+    img[:, :] = (200, 60, 30)  # saturated blue: H = 120 (bin 10), S = 218 (bin 6), V = 200 (bin 6)
     d = hsv_descriptor(img, np.array([[10, 10, 50, 60]], np.float32))[0]
     assert d[120 * 16 // 180] == pytest.approx(1.0)
     assert d[16 + 218 // 32] == pytest.approx(1.0)
@@ -34,17 +41,28 @@ def test_single_colour_box_fills_expected_bins():
 
 def test_partial_box_at_border_uses_only_inside_pixels():
     img = np.zeros((100, 100, 3), np.uint8)
-    img[:, :50] = (30, 30, 200)             # red left half
-    img[:, 50:] = (200, 60, 30)             # blue right half
+    img[:, :50] = (30, 30, 200)  # red left half
+    img[:, 50:] = (200, 60, 30)  # blue right half
     # Box sticking out on the left: the inside part [0, 50) is all red.
     d = hsv_descriptor(img, np.array([[-80, 10, 50, 90], [50, -5, 180, 200]], np.float32))
-    assert d[0, 0] == pytest.approx(1.0)                # red hue bin 0
+    assert d[0, 0] == pytest.approx(1.0)  # red hue bin 0
     assert d[1, 120 * 16 // 180] == pytest.approx(1.0)  # blue only
-    np.testing.assert_allclose(clip_boxes(np.array([[-80, 10, 50, 90]]), 100, 100), [[0, 10, 50, 90]])
+    np.testing.assert_allclose(
+        clip_boxes(np.array([[-80, 10, 50, 90]]), 100, 100), [[0, 10, 50, 90]]
+    )
 
 
-@pytest.mark.parametrize("box", [[10, 10, 10, 50], [30, 30, 20, 40], [200, 200, 300, 300], [-50, -50, -1, -1],
-                                 [np.nan, 0, 10, 10], [0, 0, np.inf, 10]])
+@pytest.mark.parametrize(
+    "box",
+    [
+        [10, 10, 10, 50],
+        [30, 30, 20, 40],
+        [200, 200, 300, 300],
+        [-50, -50, -1, -1],
+        [np.nan, 0, 10, 10],
+        [0, 0, np.inf, 10],
+    ],
+)
 def test_degenerate_box_gives_uniform_descriptor(box):
     img = np.full((100, 100, 3), 128, np.uint8)
     d = hsv_descriptor(img, np.array([box], np.float32))

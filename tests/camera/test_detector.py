@@ -35,8 +35,10 @@ def _v8_output(net_boxes, classes, scores, nc=8, n=300, seed=0):
     out[0:2] = xy.T
     out[2:4] = 20
     out[4:] = rng.uniform(0, 0.05, (nc, n))
-    for k, (b, c, s) in enumerate(zip(net_boxes, classes, scores)):
-        for j, (shift, ds) in enumerate(((0.0, 0.0), (2.0, 0.15))):    # the box and a weaker duplicate
+    for k, (b, c, s) in enumerate(zip(net_boxes, classes, scores, strict=True)):
+        for j, (shift, ds) in enumerate(
+            ((0.0, 0.0), (2.0, 0.15))
+        ):  # the box and a weaker duplicate
             col = 2 * k + j
             bb = b + shift
             out[:4, col] = ((bb[0] + bb[2]) / 2, (bb[1] + bb[3]) / 2, bb[2] - bb[0], bb[3] - bb[1])
@@ -50,13 +52,22 @@ def test_painted_vehicles_detected_where_painted_and_told_apart(tmp_path):
     net = _letterbox_encode(boxes)
     out = _v8_output(net, classes=[2, 2, 7, 2, 5], scores=[0.9, 0.85, 0.8, 0.75, 0.7])
     model = _write(tmp_path, "v8.onnx", ob.constant_model({"output0": out}, (1, 3, 640, 640)))
-    det = OnnxDetector(DetectorConfig(model=model, kind="yolov8", classes=(2, 5, 7), score_threshold=0.3))
+    det = OnnxDetector(
+        DetectorConfig(model=model, kind="yolov8", classes=(2, 5, 7), score_threshold=0.3)
+    )
     assert det.input_size == (640, 640)
-    calib = validate([[800, 0, 640], [0, 800, 360], [0, 0, 1]], [], (1280, 720), np.eye(4),
-                     {"camera_height": 1.5, "pitch_deg": 0.0})
+    calib = validate(
+        [[800, 0, 640], [0, 800, 360], [0, 0, 1]],
+        [],
+        (1280, 720),
+        np.eye(4),
+        {"camera_height": 1.5, "pitch_deg": 0.0},
+    )
     stage = DetectionStage(det.detect, calib)
     dets = stage.process(img, stamp=12.5)
-    assert dets.stamp == 12.5 and dets.boxes.dtype == np.float32 and dets.features.dtype == np.float32
+    assert (
+        dets.stamp == 12.5 and dets.boxes.dtype == np.float32 and dets.features.dtype == np.float32
+    )
     assert dets.boxes.shape == (5, 6) and dets.features.shape == (5, 32)
     # Every painted vehicle is found once (duplicates suppressed), at its painted place (< 1 px).
     order = np.argsort(dets.boxes[:, 0])
@@ -70,12 +81,12 @@ def test_painted_vehicles_detected_where_painted_and_told_apart(tmp_path):
         assert np.linalg.norm(contact) < b[5] < np.linalg.norm(contact) + 1.5
     assert (dets.depth_sigma > 0).all() and dets.depth_source == "ground"
     # Descriptors tell the colours apart: each box's dominant hue bin is its body colour's.
-    for b, f in zip(dets.boxes, dets.features):
+    for b, f in zip(dets.boxes, dets.features, strict=True):
         k = int(np.argmin(np.abs(boxes[:, 0] - b[0])))
         assert np.argmax(f[:16]) == COLOURS[names[k]][1] * 16 // 180
     feats = dets.features[np.argsort(dets.boxes[:, 0])]
     dist = np.abs(feats[:, None] - feats[None]).sum(-1)
-    same = dist[0, 4]                                   # the two red cars
+    same = dist[0, 4]  # the two red cars
     assert same < 0.5 * min(dist[0, 1], dist[0, 2], dist[0, 3])
 
 
@@ -95,24 +106,30 @@ def test_yolov5_int8_model_runs_and_decodes(tmp_path):
     np.testing.assert_array_equal(dec.classes, [0, 1])
     # int8 quantisation error of the box coordinates (scale = max/127 ~ 3 network px ~ 6 image px)
     np.testing.assert_allclose(dec.boxes[np.argsort(dec.boxes[:, 0])], boxes[:2], atol=8.0)
-    np.testing.assert_allclose(dec.scores, exact["output"][0, :2, 4] * exact["output"][0, [0, 1], [5, 6]], rtol=1e-6)
+    np.testing.assert_allclose(
+        dec.scores, exact["output"][0, :2, 4] * exact["output"][0, [0, 1], [5, 6]], rtol=1e-6
+    )
 
 
 def test_centernet_model_with_depth_head(tmp_path):
-    h, w = 160, 160                    # 640 / stride 4
+    h, w = 160, 160  # 640 / stride 4
     hm = np.full((1, 2, h, w), -6.0, np.float32)
     wh = np.zeros((1, 2, h, w), np.float32)
     reg = np.zeros((1, 2, h, w), np.float32)
     dep = np.zeros((1, 1, h, w), np.float32)
-    hm[0, 1, 80, 40] = 3.0             # sigmoid 0.95
+    hm[0, 1, 80, 40] = 3.0  # sigmoid 0.95
     wh[0, :, 80, 40] = (20, 10)
     dep[0, 0, 80, 40] = -np.log(25.0)  # depth 25 m
     data = ob.constant_model({"hm": hm, "wh": wh, "reg": reg, "dep": dep}, (1, 3, 640, 640))
-    det = OnnxDetector(DetectorConfig(model=_write(tmp_path, "cn.onnx", data), kind="centernet", letterbox=False))
-    img = np.zeros((320, 640, 3), np.uint8)   # stretched: x scale 1, y scale 2
+    det = OnnxDetector(
+        DetectorConfig(model=_write(tmp_path, "cn.onnx", data), kind="centernet", letterbox=False)
+    )
+    img = np.zeros((320, 640, 3), np.uint8)  # stretched: x scale 1, y scale 2
     dec = det.detect(img)
     assert len(dec) == 1 and dec.classes[0] == 1
-    np.testing.assert_allclose(dec.boxes[0], [(160 - 40), (320 - 20) / 2, (160 + 40), (320 + 20) / 2], atol=1e-3)
+    np.testing.assert_allclose(
+        dec.boxes[0], [(160 - 40), (320 - 20) / 2, (160 + 40), (320 + 20) / 2], atol=1e-3
+    )
     assert dec.depth[0] == pytest.approx(25.0, rel=1e-4)
     calib = validate([[500, 0, 320], [0, 500, 160], [0, 0, 1]], [], (640, 320), np.eye(4))
     out = DetectionStage(det.detect, calib, ground=GroundPlane(1.5)).process(img, 1.0)
@@ -120,6 +137,7 @@ def test_centernet_model_with_depth_head(tmp_path):
 
 
 # ---- bad models fail at start, naming the file and what was expected ---------------------------
+
 
 def test_missing_model_names_file(tmp_path):
     with pytest.raises(ModelError, match=r"nope\.onnx.*no such model file.*yolov8"):
@@ -132,41 +150,78 @@ def test_garbage_model_names_file(tmp_path):
         OnnxDetector(DetectorConfig(model=p))
 
 
-@pytest.mark.parametrize("shape,match", [
-    ((1, 640, 640, 3), r"NCHW.*looks like NHWC"),
-    ((1, 1, 64, 64), r"\(1, 3, H, W\)"),
-    ((1, 3, 64), r"\(1, 3, H, W\)"),
-])
+@pytest.mark.parametrize(
+    "shape,match",
+    [
+        ((1, 640, 640, 3), r"NCHW.*looks like NHWC"),
+        ((1, 1, 64, 64), r"\(1, 3, H, W\)"),
+        ((1, 3, 64), r"\(1, 3, H, W\)"),
+    ],
+)
 def test_wrong_input_shape(tmp_path, shape, match):
-    p = _write(tmp_path, "bad_in.onnx", ob.constant_model({"output0": np.zeros((1, 6, 100))}, shape))
+    p = _write(
+        tmp_path, "bad_in.onnx", ob.constant_model({"output0": np.zeros((1, 6, 100))}, shape)
+    )
     with pytest.raises(ModelError, match=r"bad_in\.onnx.*" + match):
         OnnxDetector(DetectorConfig(model=p))
 
 
 def test_dynamic_input_needs_input_size(tmp_path):
-    p = _write(tmp_path, "dyn.onnx", ob.constant_model({"output0": np.zeros((1, 6, 100))}, (1, 3, "h", "w")))
+    p = _write(
+        tmp_path,
+        "dyn.onnx",
+        ob.constant_model({"output0": np.zeros((1, 6, 100))}, (1, 3, "h", "w")),
+    )
     with pytest.raises(ModelError, match="input_size"):
         OnnxDetector(DetectorConfig(model=p))
     assert OnnxDetector(DetectorConfig(model=p, input_size=(320, 256))).input_size == (320, 256)
     with pytest.raises(ModelError, match="does not match"):
-        OnnxDetector(DetectorConfig(model=_write(tmp_path, "s.onnx", ob.constant_model(
-            {"output0": np.zeros((1, 6, 100))}, (1, 3, 64, 64))), input_size=(32, 32)))
+        OnnxDetector(
+            DetectorConfig(
+                model=_write(
+                    tmp_path,
+                    "s.onnx",
+                    ob.constant_model({"output0": np.zeros((1, 6, 100))}, (1, 3, 64, 64)),
+                ),
+                input_size=(32, 32),
+            )
+        )
 
 
 def test_wrong_output_layout(tmp_path):
-    v5_layout = _write(tmp_path, "v5.onnx", ob.constant_model({"output0": np.zeros((1, 8400, 84))}, (1, 3, 64, 64)))
-    with pytest.raises(ModelError, match=r"v5\.onnx.*expected one output \(1, 4 \+ C, N\).*yolov5 model"):
+    v5_layout = _write(
+        tmp_path, "v5.onnx", ob.constant_model({"output0": np.zeros((1, 8400, 84))}, (1, 3, 64, 64))
+    )
+    with pytest.raises(
+        ModelError, match=r"v5\.onnx.*expected one output \(1, 4 \+ C, N\).*yolov5 model"
+    ):
         OnnxDetector(DetectorConfig(model=v5_layout, kind="yolov8"))
     assert OnnxDetector(DetectorConfig(model=v5_layout, kind="yolov5")).num_classes == 79
-    two = _write(tmp_path, "two.onnx", ob.constant_model({"a": np.zeros((1, 6, 100)), "b": np.zeros((1, 6, 100))},
-                                                         (1, 3, 64, 64)))
+    two = _write(
+        tmp_path,
+        "two.onnx",
+        ob.constant_model({"a": np.zeros((1, 6, 100)), "b": np.zeros((1, 6, 100))}, (1, 3, 64, 64)),
+    )
     with pytest.raises(ModelError, match=r"two\.onnx.*one output"):
         OnnxDetector(DetectorConfig(model=two))
     with pytest.raises(ModelError, match=r"classes"):
-        OnnxDetector(DetectorConfig(model=_write(tmp_path, "v8.onnx", ob.constant_model(
-            {"o": np.zeros((1, 8, 100))}, (1, 3, 64, 64))), classes=(2, 7)))
-    cn = _write(tmp_path, "cn.onnx", ob.constant_model({"hm": np.zeros((1, 2, 16, 16)),
-                                                        "size": np.zeros((1, 2, 16, 16))}, (1, 3, 64, 64)))
+        OnnxDetector(
+            DetectorConfig(
+                model=_write(
+                    tmp_path,
+                    "v8.onnx",
+                    ob.constant_model({"o": np.zeros((1, 8, 100))}, (1, 3, 64, 64)),
+                ),
+                classes=(2, 7),
+            )
+        )
+    cn = _write(
+        tmp_path,
+        "cn.onnx",
+        ob.constant_model(
+            {"hm": np.zeros((1, 2, 16, 16)), "size": np.zeros((1, 2, 16, 16))}, (1, 3, 64, 64)
+        ),
+    )
     with pytest.raises(ModelError, match=r"cn\.onnx.*heatmap"):
         OnnxDetector(DetectorConfig(model=cn, kind="centernet"))
 
@@ -178,7 +233,9 @@ def test_config_from_dict_rejects_unknown_keys():
         DetectorConfig.from_dict({"model": "m.onnx", "kind": "yolov3"})
     with pytest.raises(ConfigError, match="num_classes"):
         DetectorConfig.from_dict({"model": "m.onnx", "depth_index": 88})
-    cfg = DetectorConfig.from_dict({"model": "m.onnx", "classes": [2, 7], "input_size": [640, 384], "threads": 2})
+    cfg = DetectorConfig.from_dict(
+        {"model": "m.onnx", "classes": [2, 7], "input_size": [640, 384], "threads": 2}
+    )
     assert cfg.classes == (2, 7) and cfg.input_size == (640, 384) and cfg.threads == 2
 
 
@@ -191,6 +248,7 @@ def test_identity_model_feeds_raw_output_through_decoder(tmp_path):
     raw[0, :4, 7] = (50, 60, 20, 10)
     raw[0, 4 + 3, 7] = 0.8
     from drivers.camera.decode import decode_yolov8
+
     dec = decode_yolov8(s.run(None, {"raw": raw})[0], 0.5)
     np.testing.assert_allclose(dec.boxes, [[40, 55, 60, 65]])
     assert dec.classes.tolist() == [3]

@@ -14,27 +14,66 @@ dai = pytest.importorskip("depthai")
 
 from drivers.camera.calibration import validate  # noqa: E402
 from drivers.camera.errors import CameraUnavailable, ModelError  # noqa: E402
-from drivers.camera.sources.oak import (OakCamera, OakConfig, OakModel, build_oak_pipeline,  # noqa: E402
-                                        detections_to_decoded, device_stamp_to_shared, load_oak_model)
+from drivers.camera.sources.oak import (  # noqa: E402
+    OakCamera,
+    OakConfig,
+    OakModel,
+    build_oak_pipeline,  # noqa: E402
+    detections_to_decoded,
+    device_stamp_to_shared,
+    load_oak_model,
+)
 
 W, H = 640, 400
-CALIB = validate([[500, 0, 320], [0, 500, 200], [0, 0, 1]], [], (W, H), np.eye(4), {"camera_height": 1.3})
+CALIB = validate(
+    [[500, 0, 320], [0, 500, 200], [0, 0, 1]], [], (W, H), np.eye(4), {"camera_height": 1.3}
+)
 
 
 def make_archive(path, input_size=(64, 64)):
     """A minimal NN archive (config.json + model file), as HubAI/modelconverter produce."""
     w, h = input_size
-    cfg = {"config_version": "1.0",
-           "model": {"metadata": {"name": "tiny-vehicles", "path": "tiny.onnx", "precision": "float32"},
-                     "inputs": [{"name": "images", "dtype": "float32", "input_type": "image", "shape": [1, 3, h, w],
-                                 "layout": "NCHW", "preprocessing": {"mean": [0, 0, 0], "scale": [255, 255, 255],
-                                                                      "reverse_channels": False,
-                                                                      "interleaved_to_planar": False}}],
-                     "outputs": [{"name": "output0", "dtype": "float32", "shape": [1, 6, 84], "layout": "NCD"}],
-                     "heads": [{"parser": "YOLO", "outputs": ["output0"],
-                                "metadata": {"postprocessor_path": None, "classes": ["car", "truck"], "n_classes": 2,
-                                             "iou_threshold": 0.5, "conf_threshold": 0.5, "max_det": 100,
-                                             "anchors": None, "subtype": "yolov8", "yolo_outputs": ["output0"]}}]}}
+    cfg = {
+        "config_version": "1.0",
+        "model": {
+            "metadata": {"name": "tiny-vehicles", "path": "tiny.onnx", "precision": "float32"},
+            "inputs": [
+                {
+                    "name": "images",
+                    "dtype": "float32",
+                    "input_type": "image",
+                    "shape": [1, 3, h, w],
+                    "layout": "NCHW",
+                    "preprocessing": {
+                        "mean": [0, 0, 0],
+                        "scale": [255, 255, 255],
+                        "reverse_channels": False,
+                        "interleaved_to_planar": False,
+                    },
+                }
+            ],
+            "outputs": [
+                {"name": "output0", "dtype": "float32", "shape": [1, 6, 84], "layout": "NCD"}
+            ],
+            "heads": [
+                {
+                    "parser": "YOLO",
+                    "outputs": ["output0"],
+                    "metadata": {
+                        "postprocessor_path": None,
+                        "classes": ["car", "truck"],
+                        "n_classes": 2,
+                        "iou_threshold": 0.5,
+                        "conf_threshold": 0.5,
+                        "max_det": 100,
+                        "anchors": None,
+                        "subtype": "yolov8",
+                        "yolo_outputs": ["output0"],
+                    },
+                }
+            ],
+        },
+    }
     with tarfile.open(path, "w:xz") as tar:
         for name, data in (("config.json", json.dumps(cfg).encode()), ("tiny.onnx", b"\x08\x08")):
             info = tarfile.TarInfo(name)
@@ -72,7 +111,7 @@ def test_no_device_fails_clearly_and_fast(tmp_path):
     t0 = time.monotonic()
     with pytest.raises(CameraUnavailable) as exc:
         cam.open()
-    assert time.monotonic() - t0 < 10            # DEPTHAI_PROTOCOL=usb: no 11 s network search
+    assert time.monotonic() - t0 < 10  # DEPTHAI_PROTOCOL=usb: no 11 s network search
     msg = str(exc.value)
     assert "no OAK device found" in msg and "DEPTHAI_PROTOCOL=usb" in msg and "m.tar.xz" in msg
     cam.close()
@@ -80,7 +119,8 @@ def test_no_device_fails_clearly_and_fast(tmp_path):
 
 
 def test_host_only_pipeline_refuses_device_nodes_in_our_builder(tmp_path):
-    """Our builder calls the real v3 API (Pipeline.create(node.Camera) ...) up to the device node."""
+    """Our builder calls the real v3 API (Pipeline.create(node.Camera) ...) up to the device
+    node."""
     model = load_oak_model(dai, OakConfig(model=make_archive(tmp_path / "m.tar.xz")))
     p = dai.Pipeline(False)
     with pytest.raises(RuntimeError, match="host only"):
@@ -88,6 +128,7 @@ def test_host_only_pipeline_refuses_device_nodes_in_our_builder(tmp_path):
 
 
 # ---- wiring, checked against a recording stand-in for depthai --------------------------------
+
 
 class Rec:
     """Records every attribute access and call as a path, returns itself (or given values)."""
@@ -110,20 +151,31 @@ def test_pipeline_wiring_archive_and_blob(tmp_path):
     log = []
     fake_dai, pipe = Rec(log, "dai"), Rec(log, "pipeline")
     cfg = OakConfig(model="m.tar.xz", fps=12.0, confidence=0.4)
-    build_oak_pipeline(fake_dai, pipe, cfg, OakModel(tmp_path / "m.tar.xz", "archive", "ARCHIVE", (64, 64)), (W, H))
+    build_oak_pipeline(
+        fake_dai, pipe, cfg, OakModel(tmp_path / "m.tar.xz", "archive", "ARCHIVE", (64, 64)), (W, H)
+    )
     calls = [(n, tuple(map(repr, a))) for n, a, _ in log]
     assert ("pipeline.create", ("dai.node.Camera",)) in calls
     assert ("pipeline.create().build", ("dai.CameraBoardSocket.CAM_A",)) in calls
-    assert ("pipeline.create().build().requestOutput",
-            ("(640, 400)", "dai.ImgFrame.Type.BGR888p", "dai.ImgResizeMode.STRETCH", "12.0")) in calls
+    assert (
+        "pipeline.create().build().requestOutput",
+        ("(640, 400)", "dai.ImgFrame.Type.BGR888p", "dai.ImgResizeMode.STRETCH", "12.0"),
+    ) in calls
     assert ("pipeline.create", ("dai.node.DetectionNetwork",)) in calls
-    assert any(n == "pipeline.create().build" and a[1:] == ("'ARCHIVE'", "12.0", "dai.ImgResizeMode.STRETCH")
-               for n, a in calls)
+    assert any(
+        n == "pipeline.create().build"
+        and a[1:] == ("'ARCHIVE'", "12.0", "dai.ImgResizeMode.STRETCH")
+        for n, a in calls
+    )
     assert ("pipeline.create().build().setConfidenceThreshold", ("0.4",)) in calls
     assert sum(n.endswith("createOutputQueue") for n, _ in calls) == 2
     log.clear()
-    cfg = OakConfig(model="y.blob", blob_input_size=(416, 416), blob_num_classes=3, blob_subtype="yolov8")
-    build_oak_pipeline(fake_dai, pipe, cfg, OakModel(tmp_path / "y.blob", "blob", None, (416, 416)), (W, H))
+    cfg = OakConfig(
+        model="y.blob", blob_input_size=(416, 416), blob_num_classes=3, blob_subtype="yolov8"
+    )
+    build_oak_pipeline(
+        fake_dai, pipe, cfg, OakModel(tmp_path / "y.blob", "blob", None, (416, 416)), (W, H)
+    )
     calls = [(n, tuple(map(repr, a))) for n, a, _ in log]
     assert ("pipeline.create().setBlobPath", (repr(str(tmp_path / "y.blob")),)) in calls
     assert ("pipeline.create().detectionParser.setNumClasses", ("3",)) in calls
@@ -133,6 +185,7 @@ def test_pipeline_wiring_archive_and_blob(tmp_path):
 
 
 # ---- host side: detections + frames -> Detections ---------------------------------------------
+
 
 def _img_detections(rows, seq, ts):
     d = dai.ImgDetections()
@@ -148,8 +201,11 @@ def _img_detections(rows, seq, ts):
 
 
 def test_detections_to_decoded():
-    msg = _img_detections([(0.1, 0.2, 0.3, 0.4, 0.9, 2), (-0.1, 0.5, 0.5, 1.2, 0.6, 7), (0.5, 0.5, 0.6, 0.6, 0.7, 0)],
-                          1, 0.0)
+    msg = _img_detections(
+        [(0.1, 0.2, 0.3, 0.4, 0.9, 2), (-0.1, 0.5, 0.5, 1.2, 0.6, 7), (0.5, 0.5, 0.6, 0.6, 0.7, 0)],
+        1,
+        0.0,
+    )
     dec = detections_to_decoded(msg, W, H, classes=(2, 7))
     np.testing.assert_allclose(dec.boxes, [[64, 80, 192, 160], [0, 200, 320, 400]], atol=1e-3)
     np.testing.assert_allclose(dec.scores, [0.9, 0.6], atol=1e-6)
@@ -203,23 +259,29 @@ def test_oak_camera_read_pairs_frames_and_reports_loss(tmp_path, monkeypatch):
     red = np.zeros((H, W, 3), np.uint8)
     red[:, :] = (30, 30, 200)
     now = time.monotonic()
-    dets = FakeQueue([_img_detections([(0.25, 0.25, 0.5, 0.75, 0.8, 2)], 5, now),
-                      _img_detections([(0.25, 0.25, 0.5, 0.75, 0.8, 2)], 6, now + 0.05)])
+    dets = FakeQueue(
+        [
+            _img_detections([(0.25, 0.25, 0.5, 0.75, 0.8, 2)], 5, now),
+            _img_detections([(0.25, 0.25, 0.5, 0.75, 0.8, 2)], 6, now + 0.05),
+        ]
+    )
     frames = FakeQueue([FakeFrame(5, red), FakeFrame(6, np.zeros((H // 2, W // 2, 3), np.uint8))])
     pipe = FakePipeline()
     import drivers.camera.sources.oak as oak
 
     monkeypatch.setattr(oak, "build_oak_pipeline", lambda *a, **k: oak.OakQueues(dets, frames))
-    cam = OakCamera(OakConfig(model=make_archive(tmp_path / "m.tar.xz")), CALIB, pipeline_factory=lambda: pipe)
+    cam = OakCamera(
+        OakConfig(model=make_archive(tmp_path / "m.tar.xz")), CALIB, pipeline_factory=lambda: pipe
+    )
     with cam:
         d = cam.read(0.5)
         np.testing.assert_allclose(d.boxes[0, :4], [160, 100, 320, 300], atol=1e-3)
         assert d.boxes[0, 4] == pytest.approx(0.8) and d.boxes[0, 5] > 0
-        assert np.argmax(d.features[0, :16]) == 0                        # descriptor from the paired red frame
+        assert np.argmax(d.features[0, :16]) == 0  # descriptor from the paired red frame
         assert abs(d.stamp - time.time()) < 1.0
-        assert cam.read(0.5) is None                                     # paired frame has the wrong size
+        assert cam.read(0.5) is None  # paired frame has the wrong size
         assert cam.counters()["skipped_size"] == 1
-        assert cam.read(0.02) is None                                    # nothing more within the timeout
+        assert cam.read(0.02) is None  # nothing more within the timeout
         pipe.running = False
         with pytest.raises(CameraUnavailable, match="pipeline stopped"):
             cam.read(0.1)
@@ -231,11 +293,15 @@ def test_calibration_from_factory_handler(tmp_path):
     from drivers.camera.sources.oak import calibration_from_oak
 
     h = dai.CalibrationHandler()
-    h.setCameraIntrinsics(dai.CameraBoardSocket.CAM_A, [[1500.0, 0, 960], [0, 1500.0, 540], [0, 0, 1]], 1920, 1080)
+    h.setCameraIntrinsics(
+        dai.CameraBoardSocket.CAM_A, [[1500.0, 0, 960], [0, 1500.0, 540], [0, 0, 1]], 1920, 1080
+    )
     h.setDistortionCoefficients(dai.CameraBoardSocket.CAM_A, [-0.1, 0.02] + [0.0] * 12)
     T = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0.1], [0, 1, 0, 0.05], [0, 0, 0, 1]])
     c = calibration_from_oak(h, (640, 400), T, {"camera_height": 1.2})
-    np.testing.assert_allclose(c.K, [[500, 0, 320], [0, 1500 * 400 / 1080, 200], [0, 0, 1]], rtol=1e-6)
+    np.testing.assert_allclose(
+        c.K, [[500, 0, 320], [0, 1500 * 400 / 1080, 200], [0, 0, 1]], rtol=1e-6
+    )
     assert c.dist.shape == (14,) and c.dist[0] == pytest.approx(-0.1)
     p = tmp_path / "oak.toml"
     p.write_text(dumps_calibration(c))

@@ -1,4 +1,3 @@
-import threading
 import time
 
 import cv2
@@ -21,12 +20,18 @@ from . import onnx_builder as ob
 from .camera_synth import painted_scene
 
 W, H = 320, 240
-CALIB = validate([[300, 0, 160], [0, 300, 120], [0, 0, 1]], [], (W, H), np.eye(4), {"camera_height": 1.2})
+CALIB = validate(
+    [[300, 0, 160], [0, 300, 120], [0, 0, 1]], [], (W, H), np.eye(4), {"camera_height": 1.2}
+)
 
 
 def fixed_detector(image):
     """A stand-in detector: one box in the middle of the image."""
-    return Decoded(np.array([[100, 80, 200, 180]], np.float32), np.array([0.9], np.float32), np.array([2], np.int32))
+    return Decoded(
+        np.array([[100, 80, 200, 180]], np.float32),
+        np.array([0.9], np.float32),
+        np.array([2], np.int32),
+    )
 
 
 def _stage():
@@ -60,9 +65,9 @@ def test_opencv_video_file_end_to_end(tmp_path):
     assert stamps[0] == pytest.approx(100.0) and np.allclose(np.diff(stamps), 0.1, atol=1e-3)
     for d in got:
         assert d.boxes.shape == (1, 6) and d.boxes[0, 4] == pytest.approx(0.9)
-        assert np.argmax(d.features[0, :16]) == 0            # the red patch fills the box
+        assert np.argmax(d.features[0, :16]) == 0  # the red patch fills the box
     assert cam.counters()["frames"] == 5 and cam.counters()["detections"] == 5
-    cam.close()                                               # safe twice
+    cam.close()  # safe twice
 
 
 def test_opencv_missing_devices_raise_device_errors(tmp_path):
@@ -74,8 +79,14 @@ def test_opencv_missing_devices_raise_device_errors(tmp_path):
 
 def test_wrong_frames_are_skipped_and_counted():
     good = np.zeros((H, W, 3), np.uint8)
-    frames = [(0.0, good), (0.1, np.zeros((H + 1, W, 3), np.uint8)), (0.2, good.astype(np.float32)),
-              (0.3, np.zeros((H, W), np.uint8)), (0.4, None), (0.5, good)]
+    frames = [
+        (0.0, good),
+        (0.1, np.zeros((H + 1, W, 3), np.uint8)),
+        (0.2, good.astype(np.float32)),
+        (0.3, np.zeros((H, W), np.uint8)),
+        (0.4, None),
+        (0.5, good),
+    ]
     cam = ReplayCamera(frames=frames, stage=_stage())
     out = []
     with pytest.raises(EndOfStream):
@@ -92,14 +103,18 @@ def test_replay_image_folder_with_stamps_and_detector(tmp_path):
     small = cv2.resize(img, (W, H))
     for i in range(3):
         cv2.imwrite(str(tmp_path / f"f{i:03d}.png"), small)
-    (tmp_path / "stamps.csv").write_text("# name,stamp\nf000.png,10.0\nf001.png,10.05\nf002.png,10.1\n")
+    (tmp_path / "stamps.csv").write_text(
+        "# name,stamp\nf000.png,10.0\nf001.png,10.05\nf002.png,10.1\n"
+    )
     slept = []
     cam = ReplayCamera(tmp_path, stage=_stage(), realtime=True, sleep=slept.append)
     dets = [cam.read(0.1) for _ in range(3)]
     with pytest.raises(EndOfStream):
         cam.read(0.1)
     assert [d.stamp for d in dets] == [10.0, 10.05, 10.1]
-    assert len(slept) == 2 and all(0.0 < s <= 0.05 + 1e-6 for s in slept)   # paced at the recorded rate
+    assert len(slept) == 2 and all(
+        0.0 < s <= 0.05 + 1e-6 for s in slept
+    )  # paced at the recorded rate
     assert cam.camera.image_size == (W, H)
 
 
@@ -116,6 +131,7 @@ def test_replay_scene_folder(tmp_path):
     with pytest.raises(EndOfStream):
         cam.read(0.1)
     from mmatch.scene_io import load_scene
+
     ref = load_scene(tmp_path / "s1.npz").cav
     np.testing.assert_array_equal(d1.boxes, ref.boxes)
     np.testing.assert_array_equal(d1.features, ref.features)
@@ -135,13 +151,14 @@ def test_sim_camera_on_a_fake_clock():
     dets = [cam.read(1.0) for _ in range(3)]
     assert [round(d.stamp, 6) for d in dets] == [1000.1, 1000.2, 1000.3]
     assert all(d.boxes.shape[1] == 6 and d.features.shape[1] == 32 for d in dets)
-    assert cam.read(0.01) is None                      # next frame is 0.1 s away
+    assert cam.read(0.01) is None  # next frame is 0.1 s away
     assert cam.camera.K.shape == (3, 3)
 
 
 def test_open_camera_checks_at_start(tmp_path):
     calib = tmp_path / "c.toml"
     from drivers.camera.calibration import dumps_calibration
+
     calib.write_text(dumps_calibration(CALIB))
     with pytest.raises(ModelError, match="missing.onnx"):
         open_camera("opencv", calibration=str(calib), model=str(tmp_path / "missing.onnx"))
@@ -150,7 +167,9 @@ def test_open_camera_checks_at_start(tmp_path):
     with pytest.raises(ConfigError, match="unknown backend"):
         open_camera("usb")
     model = tmp_path / "det.onnx"
-    model.write_bytes(ob.constant_model({"output0": np.zeros((1, 7, 50), np.float32)}, (1, 3, 64, 64)))
+    model.write_bytes(
+        ob.constant_model({"output0": np.zeros((1, 7, 50), np.float32)}, (1, 3, 64, 64))
+    )
     (tmp_path / "det.toml").write_text('kind = "yolov8"\nscore_threshold = 0.4\nclasses = [1, 2]\n')
     cam = open_camera("opencv", device="3", calibration=str(calib), model=str(model), threads=1)
     assert isinstance(cam, OpenCvCamera) and cam.stage is not None
@@ -161,8 +180,9 @@ def test_open_camera_checks_at_start(tmp_path):
 
 # ---- a camera that disappears never stops the radar loop ----------------------------------------
 
+
 class FlakyCamera(CameraSource):
-    """Gives `good` frames, then the device 'disappears' (DeviceError) for the next `bad_opens` opens."""
+    """Gives `good` frames, then 'disappears' (DeviceError); opens fail as `plan` says."""
 
     opens: list[float] = []
     plan: list[str] = []
@@ -185,7 +205,9 @@ class FlakyCamera(CameraSource):
             raise CameraUnavailable("flaky: unplugged")
         self.n += 1
         time.sleep(0.002)
-        return Detections(np.zeros((0, 6), np.float32), np.zeros((0, 32), np.float32), stamp=time.time())
+        return Detections(
+            np.zeros((0, 6), np.float32), np.zeros((0, 32), np.float32), stamp=time.time()
+        )
 
     def close(self):
         pass
@@ -194,12 +216,14 @@ class FlakyCamera(CameraSource):
 def test_resilient_camera_reconnects_with_backoff_and_never_raises(caplog):
     FlakyCamera.opens = []
     FlakyCamera.plan = ["ok", "fail", "fail", "ok", "ok"]
-    cam = ResilientCamera(lambda: FlakyCamera(good=3), backoff_s=0.01, max_backoff_s=0.04, name="cam0")
+    cam = ResilientCamera(
+        lambda: FlakyCamera(good=3), backoff_s=0.01, max_backoff_s=0.04, name="cam0"
+    )
     got = 0
     loops = 0
     with cam:
         deadline = time.monotonic() + 10
-        while got < 6 and time.monotonic() < deadline:       # "the radar loop"
+        while got < 6 and time.monotonic() < deadline:  # "the radar loop"
             loops += 1
             if cam.read(0.05) is not None:
                 got += 1
@@ -218,7 +242,9 @@ def test_resilient_camera_reconnects_with_backoff_and_never_raises(caplog):
 
 def test_resilient_camera_on_a_missing_device_keeps_returning_none():
     stage = _stage()
-    cam = ResilientCamera(lambda: OpenCvCamera("/dev/video98", stage), backoff_s=0.01, max_backoff_s=0.02)
+    cam = ResilientCamera(
+        lambda: OpenCvCamera("/dev/video98", stage), backoff_s=0.01, max_backoff_s=0.02
+    )
     with cam:
         t0 = time.monotonic()
         results = [cam.read(0.02) for _ in range(10)]
@@ -238,8 +264,13 @@ def test_resilient_camera_stops_on_config_errors_and_end_of_stream():
     assert cam.read(1.0) is None
     assert cam.state == "failed" and "m.onnx" in cam.last_error
     cam.close()
-    frames = [Detections(np.zeros((0, 6), np.float32), np.zeros((0, 32), np.float32), stamp=float(i)) for i in range(3)]
-    cam = ResilientCamera(lambda: ReplayCamera(frames=frames, calibration=CALIB), backoff_s=0.01).start()
+    frames = [
+        Detections(np.zeros((0, 6), np.float32), np.zeros((0, 32), np.float32), stamp=float(i))
+        for i in range(3)
+    ]
+    cam = ResilientCamera(
+        lambda: ReplayCamera(frames=frames, calibration=CALIB), backoff_s=0.01
+    ).start()
     seen = []
     while True:
         d = cam.read(1.0)

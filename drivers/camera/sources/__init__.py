@@ -36,24 +36,41 @@ def _sidecar(model: str) -> dict:
         raise ModelError(str(side), f"detector settings are not valid TOML: {exc}") from exc
 
 
-def open_camera(source: str, *, device: str = "0", calibration: str = "", model: str = "", path: str = "",
-                threads: int = 1, detector: dict | None = None, oak: dict | None = None,
-                radar_height: float | None = None, seed: int = 1, mode: str = "mixed", role: str = "ego",
-                rate_hz: float = 20.0, realtime: bool = False) -> CameraSource:
+def open_camera(
+    source: str,
+    *,
+    device: str = "0",
+    calibration: str = "",
+    model: str = "",
+    path: str = "",
+    threads: int = 1,
+    detector: dict | None = None,
+    oak: dict | None = None,
+    radar_height: float | None = None,
+    seed: int = 1,
+    mode: str = "mixed",
+    role: str = "ego",
+    rate_hz: float = 20.0,
+    realtime: bool = False,
+) -> CameraSource:
     """The camera backend `source`, constructed and checked (model, calibration), not yet opened.
 
     Fails at once with ModelError / CalibrationError / ConfigError naming the file or key.
     """
     if source == "sim":
         from drivers.camera.sources.sim import SimCamera
+
         return SimCamera(seed=seed, mode=mode, role=role, rate_hz=rate_hz)
     if source not in BACKENDS:
-        raise ConfigError(f"camera.source: unknown backend {source!r} (known: {', '.join(BACKENDS)})")
+        raise ConfigError(
+            f"camera.source: unknown backend {source!r} (known: {', '.join(BACKENDS)})"
+        )
     from drivers.camera.calibration import load_calibration
 
     calib = load_calibration(calibration) if calibration else None
     if source == "oak":
         from drivers.camera.sources.oak import OakCamera, OakConfig
+
         if calib is None:
             raise ConfigError("camera.calibration: required for the oak backend")
         settings = dict(oak if oak is not None else _sidecar(model))
@@ -67,8 +84,11 @@ def open_camera(source: str, *, device: str = "0", calibration: str = "", model:
     if model:
         from drivers.camera.detector import DetectorConfig, OnnxDetector
         from drivers.camera.pipeline import DetectionStage
+
         if calib is None:
-            raise ConfigError(f"camera.calibration: required with a detector model for the {source} backend")
+            raise ConfigError(
+                f"camera.calibration: required with a detector model for the {source} backend"
+            )
         settings = dict(detector if detector is not None else _sidecar(model))
         settings.setdefault("model", model)
         settings.setdefault("threads", threads)
@@ -76,13 +96,19 @@ def open_camera(source: str, *, device: str = "0", calibration: str = "", model:
         stage = DetectionStage(det.detect, calib, radar_height=radar_height)
     if source == "opencv":
         from drivers.camera.sources.opencv import OpenCvCamera
+
         if stage is None:
-            raise ConfigError("camera.model: required for the opencv backend (an ONNX vehicle detector)")
+            raise ConfigError(
+                "camera.model: required for the opencv backend (an ONNX vehicle detector)"
+            )
         return OpenCvCamera(device, stage)
     from drivers.camera.sources.replay import ReplayCamera
+
     if not path:
         raise ConfigError("camera.path: required for the replay backend")
-    return ReplayCamera(path, stage=stage, calibration=calib, role=role, realtime=realtime, rate_hz=rate_hz)
+    return ReplayCamera(
+        path, stage=stage, calibration=calib, role=role, realtime=realtime, rate_hz=rate_hz
+    )
 
 
 __all__ = ["BACKENDS", "CameraSource", "open_camera"]

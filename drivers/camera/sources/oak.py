@@ -49,7 +49,9 @@ def import_depthai():
     try:
         import depthai
     except ImportError as exc:
-        raise CameraUnavailable("the oak backend needs depthai (pip install 'mmatch[hardware]' or depthai>=3)") from exc
+        raise CameraUnavailable(
+            "the oak backend needs depthai (pip install 'mmatch[hardware]' or depthai>=3)"
+        ) from exc
     return depthai
 
 
@@ -102,7 +104,9 @@ def load_oak_model(dai, cfg: OakConfig) -> OakModel:
     path = Path(cfg.model)
     expected = "an NN archive (.tar.xz/.tar.gz/.tar) or an OpenVINO .blob"
     if not cfg.model:
-        raise ModelError("(none)", f"oak.model is empty; expected {expected} (zoo downloads are disabled)")
+        raise ModelError(
+            "(none)", f"oak.model is empty; expected {expected} (zoo downloads are disabled)"
+        )
     if not path.is_file():
         raise ModelError(str(path), f"no such model file; expected {expected}")
     name = path.name.lower()
@@ -111,13 +115,18 @@ def load_oak_model(dai, cfg: OakConfig) -> OakModel:
             archive = dai.NNArchive(str(path))
             size = tuple(archive.getInputSize())
         except Exception as exc:
-            raise ModelError(str(path), f"not a readable NN archive ({exc}); expected {expected} "
-                                        "with config.json + model") from exc
+            raise ModelError(
+                str(path),
+                f"not a readable NN archive ({exc}); expected {expected} with config.json + model",
+            ) from exc
         return OakModel(path, "archive", archive, size)
     if name.endswith(".blob"):
         if cfg.blob_input_size is None:
-            raise ModelError(str(path), "a bare .blob needs oak.blob_input_size = [width, height] "
-                                        "(an NN archive carries it)")
+            raise ModelError(
+                str(path),
+                "a bare .blob needs oak.blob_input_size = [width, height] "
+                "(an NN archive carries it)",
+            )
         try:
             dai.OpenVINO.Blob(str(path))
         except Exception as exc:
@@ -132,7 +141,9 @@ class OakQueues:
     frames: object
 
 
-def build_oak_pipeline(dai, pipeline, cfg: OakConfig, model: OakModel, image_size: tuple[int, int]) -> OakQueues:
+def build_oak_pipeline(
+    dai, pipeline, cfg: OakConfig, model: OakModel, image_size: tuple[int, int]
+) -> OakQueues:
     """Create the camera + detection network nodes on `pipeline` and their host queues.
 
     image_size: (width, height) of the frames used for descriptors, = the calibration's.
@@ -141,16 +152,23 @@ def build_oak_pipeline(dai, pipeline, cfg: OakConfig, model: OakModel, image_siz
     """
     socket = getattr(dai.CameraBoardSocket, cfg.socket)
     cam = pipeline.create(dai.node.Camera).build(socket)
-    frames_out = cam.requestOutput(tuple(image_size), dai.ImgFrame.Type.BGR888p, dai.ImgResizeMode.STRETCH, cfg.fps)
+    frames_out = cam.requestOutput(
+        tuple(image_size), dai.ImgFrame.Type.BGR888p, dai.ImgResizeMode.STRETCH, cfg.fps
+    )
     det = pipeline.create(dai.node.DetectionNetwork)
     if model.kind == "archive":
         det = det.build(cam, model.archive, cfg.fps, dai.ImgResizeMode.STRETCH)
     else:
-        nn_in = cam.requestOutput(tuple(model.input_size), dai.ImgFrame.Type.BGR888p, dai.ImgResizeMode.STRETCH,
-                                  cfg.fps)
+        nn_in = cam.requestOutput(
+            tuple(model.input_size), dai.ImgFrame.Type.BGR888p, dai.ImgResizeMode.STRETCH, cfg.fps
+        )
         det.setBlobPath(str(model.path))
         parser = det.detectionParser
-        family = dai.DetectionNetworkType.YOLO if cfg.blob_family == "yolo" else dai.DetectionNetworkType.MOBILENET
+        family = (
+            dai.DetectionNetworkType.YOLO
+            if cfg.blob_family == "yolo"
+            else dai.DetectionNetworkType.MOBILENET
+        )
         parser.setNNFamily(family)
         parser.setNumClasses(cfg.blob_num_classes)
         parser.setIouThreshold(cfg.blob_iou)
@@ -165,24 +183,31 @@ def build_oak_pipeline(dai, pipeline, cfg: OakConfig, model: OakModel, image_siz
                 parser.setAnchorMasks(dict(cfg.blob_anchor_masks))
         nn_in.link(det.input)
     det.setConfidenceThreshold(cfg.confidence)
-    return OakQueues(detections=det.out.createOutputQueue(maxSize=cfg.queue_size, blocking=False),
-                     frames=frames_out.createOutputQueue(maxSize=cfg.queue_size, blocking=False))
+    return OakQueues(
+        detections=det.out.createOutputQueue(maxSize=cfg.queue_size, blocking=False),
+        frames=frames_out.createOutputQueue(maxSize=cfg.queue_size, blocking=False),
+    )
 
 
-def detections_to_decoded(img_detections, width: int, height: int,
-                          classes: tuple[int, ...] | None = None) -> Decoded:
+def detections_to_decoded(
+    img_detections, width: int, height: int, classes: tuple[int, ...] | None = None
+) -> Decoded:
     """dai.ImgDetections (normalised xmin..ymax) -> Decoded in image px (clipped to the image)."""
     dets = list(img_detections.detections)
     if classes is not None:
         dets = [d for d in dets if d.label in classes]
     if not dets:
         return Decoded(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int32))
-    a = np.array([(d.xmin, d.ymin, d.xmax, d.ymax, d.confidence, d.label) for d in dets], np.float64)
+    a = np.array(
+        [(d.xmin, d.ymin, d.xmax, d.ymax, d.confidence, d.label) for d in dets], np.float64
+    )
     boxes = np.clip(a[:, :4], 0.0, 1.0) * np.array([width, height, width, height])
     return Decoded(boxes.astype(np.float32), a[:, 4].astype(np.float32), a[:, 5].astype(np.int32))
 
 
-def device_stamp_to_shared(ts_seconds: float, now_wall: float | None = None, now_mono: float | None = None) -> float:
+def device_stamp_to_shared(
+    ts_seconds: float, now_wall: float | None = None, now_mono: float | None = None
+) -> float:
     """depthai stamps are host steady-clock seconds (CLOCK_MONOTONIC); map to time.time()."""
     now_wall = time.time() if now_wall is None else now_wall
     now_mono = time.monotonic() if now_mono is None else now_mono
@@ -194,14 +219,23 @@ class OakCamera(CameraSource):
 
     name = "oak"
 
-    def __init__(self, config: OakConfig, calibration: Calibration, *, ground: GroundPlane | None = None,
-                 radar_height: float | None = None, depth: DepthConfig | None = None,
-                 pipeline_factory: Callable | None = None) -> None:
+    def __init__(
+        self,
+        config: OakConfig,
+        calibration: Calibration,
+        *,
+        ground: GroundPlane | None = None,
+        radar_height: float | None = None,
+        depth: DepthConfig | None = None,
+        pipeline_factory: Callable | None = None,
+    ) -> None:
         self.config = config
         self.calibration = calibration
         self.stage = DetectionStage(None, calibration, ground, radar_height, depth)
         self._dai = import_depthai()
-        self.model = load_oak_model(self._dai, config)       # fails here, before any device, on a bad model
+        self.model = load_oak_model(
+            self._dai, config
+        )  # fails here, before any device, on a bad model
         self._pipeline_factory = pipeline_factory
         self._pipeline = None
         self._queues: OakQueues | None = None
@@ -226,21 +260,28 @@ class OakCamera(CameraSource):
         try:
             pipeline = self._new_pipeline()
         except RuntimeError as exc:
-            which = f"matching {self.config.device!r}" if self.config.device else "(first available)"
+            which = (
+                f"matching {self.config.device!r}" if self.config.device else "(first available)"
+            )
             proto = os.environ.get("DEPTHAI_PROTOCOL", "any")
             raise CameraUnavailable(
                 f"oak: no OAK device found {which} (depthai: {exc}; DEPTHAI_PROTOCOL={proto}). "
                 f"Attach an OAK over USB (check `lsusb` for 03e7:) or PoE (unset DEPTHAI_PROTOCOL "
-                f"or set it to tcpip); model {self.model.path} ({self.model.kind}) is ready") from exc
+                f"or set it to tcpip); model {self.model.path} ({self.model.kind}) is ready"
+            ) from exc
         try:
-            self._queues = build_oak_pipeline(self._dai, pipeline, self.config, self.model, self.calibration.image_size)
+            self._queues = build_oak_pipeline(
+                self._dai, pipeline, self.config, self.model, self.calibration.image_size
+            )
             pipeline.start()
         except Exception as exc:
             try:
                 pipeline.stop()
             except Exception:
                 pass
-            raise CameraUnavailable(f"oak: could not start the pipeline with {self.model.path}: {exc}") from exc
+            raise CameraUnavailable(
+                f"oak: could not start the pipeline with {self.model.path}: {exc}"
+            ) from exc
         self._pipeline = pipeline
         log.info("oak: pipeline running (%s, %s)", self.model.path, self.model.kind)
 
@@ -262,7 +303,7 @@ class OakCamera(CameraSource):
                 time.sleep(0.002)
         except CameraUnavailable:
             raise
-        except Exception as exc:       # depthai raises RuntimeError / QueueException on a lost device
+        except Exception as exc:  # depthai raises RuntimeError / QueueException on a lost device
             raise CameraUnavailable(f"oak: device lost ({type(exc).__name__}: {exc})") from exc
         seq = msg.getSequenceNum()
         frame = self._frames.pop(seq, None)
@@ -281,7 +322,9 @@ class OakCamera(CameraSource):
             return None
         if image is None:
             self._no_frame += 1
-        return self.stage.process_decoded(image, detections_to_decoded(msg, W, H, self.config.classes), stamp)
+        return self.stage.process_decoded(
+            image, detections_to_decoded(msg, W, H, self.config.classes), stamp
+        )
 
     def counters(self) -> dict[str, int]:
         out = self.stage.counters.as_dict()
@@ -299,8 +342,14 @@ class OakCamera(CameraSource):
                 log.debug("oak: stop failed: %s", exc)
 
 
-def calibration_from_oak(handler, image_size: tuple[int, int], T_cam_radar: np.ndarray,
-                         ground: dict | None = None, socket: str = "CAM_A", dai=None) -> Calibration:
+def calibration_from_oak(
+    handler,
+    image_size: tuple[int, int],
+    T_cam_radar: np.ndarray,
+    ground: dict | None = None,
+    socket: str = "CAM_A",
+    dai=None,
+) -> Calibration:
     """A validated Calibration from an OAK's factory calibration (dai.CalibrationHandler, e.g.
     `device.readCalibration()`), for frames of `image_size` produced with STRETCH (the scaling
     this backend uses: fx, cx scale with width, fy, cy with height). The extrinsic to the radar
@@ -312,10 +361,14 @@ def calibration_from_oak(handler, image_size: tuple[int, int], T_cam_radar: np.n
     w, h = image_size
     model = handler.getDistortionModel(sock)
     if "Perspective" not in str(model):
-        raise ConfigError(f"oak: camera {socket} uses the {model} distortion model; only Perspective "
-                          "(OpenCV's pinhole + radial/tangential) is supported")
+        raise ConfigError(
+            f"oak: camera {socket} uses the {model} distortion model; only Perspective "
+            "(OpenCV's pinhole + radial/tangential) is supported"
+        )
     K = np.asarray(handler.getCameraIntrinsics(sock, w, h, keepAspectRatio=False), np.float64)
     dist = np.asarray(handler.getDistortionCoefficients(sock), np.float64)
     if dist.size > 14:
         dist = dist[:14]
-    return validate(K, dist, (w, h), T_cam_radar, ground, path=f"<oak {socket} factory calibration>")
+    return validate(
+        K, dist, (w, h), T_cam_radar, ground, path=f"<oak {socket} factory calibration>"
+    )

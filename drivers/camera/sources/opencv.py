@@ -39,9 +39,16 @@ class OpenCvCamera(ImageCameraBase):
 
     name = "opencv"
 
-    def __init__(self, device: str | int, stage: DetectionStage, clock: Callable[[], float] = time.time,
-                 start_stamp: float | None = None, width: int | None = None, height: int | None = None,
-                 fps: float | None = None) -> None:
+    def __init__(
+        self,
+        device: str | int,
+        stage: DetectionStage,
+        clock: Callable[[], float] = time.time,
+        start_stamp: float | None = None,
+        width: int | None = None,
+        height: int | None = None,
+        fps: float | None = None,
+    ) -> None:
         super().__init__(stage, clock)
         self.device = device
         self._arg, self.kind = parse_device(device)
@@ -60,14 +67,16 @@ class OpenCvCamera(ImageCameraBase):
         cap = cv2.VideoCapture(self._arg, api)
         if not cap.isOpened():
             cap.release()
-            raise CameraUnavailable(f"camera {self.device!r} ({self.kind}): cv2.VideoCapture could not open it")
+            raise CameraUnavailable(
+                f"camera {self.device!r} ({self.kind}): cv2.VideoCapture could not open it"
+            )
         if self.kind != "file":
             w, h = self._size if self._size[0] else self.stage.calibration.image_size
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, w)
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, h)
             if self._fps:
                 cap.set(cv2.CAP_PROP_FPS, self._fps)
-            cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)       # newest frame, not a backlog
+            cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # newest frame, not a backlog
         if self._start_stamp is None:
             self._start_stamp = self.clock()
         self._cap = cap
@@ -82,7 +91,9 @@ class OpenCvCamera(ImageCameraBase):
         if not ok:
             if self.kind == "file":
                 raise EndOfStream(f"camera {self.device!r}: end of video file")
-            raise CameraUnavailable(f"camera {self.device!r} ({self.kind}): no frame (device gone?)")
+            raise CameraUnavailable(
+                f"camera {self.device!r} ({self.kind}): no frame (device gone?)"
+            )
         if self.kind == "file":
             stamp = self._start_stamp + self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1e3
         else:

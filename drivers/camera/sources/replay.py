@@ -39,13 +39,16 @@ def _scene_items(files: list[Path], role: str) -> Iterator[Detections | CameraMo
     for f in files:
         try:
             scene = load_scene(f)
-        except Exception as exc:          # a rejected file is logged and skipped, the replay goes on
+        except Exception as exc:  # a rejected file is logged and skipped, the replay goes on
             log.warning("replay: skipping %s: %s", f, exc)
             continue
         view = scene.ego if role == "ego" else scene.cav
         yield view.camera
-        yield Detections(boxes=view.boxes.astype(np.float32), features=view.features.astype(np.float32),
-                         stamp=float(view.stamp))
+        yield Detections(
+            boxes=view.boxes.astype(np.float32),
+            features=view.features.astype(np.float32),
+            stamp=float(view.stamp),
+        )
 
 
 def _read_stamps(folder: Path) -> dict[str, float]:
@@ -69,10 +72,19 @@ class ReplayCamera(CameraSource):
     name = "replay"
     lossless = True
 
-    def __init__(self, path: str | Path | None = None, *, stage: DetectionStage | None = None,
-                 calibration: Calibration | None = None, frames: Iterable | None = None, role: str = "ego",
-                 realtime: bool = False, rate_hz: float = 10.0, start_stamp: float = 0.0,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
+    def __init__(
+        self,
+        path: str | Path | None = None,
+        *,
+        stage: DetectionStage | None = None,
+        calibration: Calibration | None = None,
+        frames: Iterable | None = None,
+        role: str = "ego",
+        realtime: bool = False,
+        rate_hz: float = 10.0,
+        start_stamp: float = 0.0,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
         if path is None and frames is None:
             raise ValueError("ReplayCamera needs a path or frames")
         self.path = None if path is None else Path(path)
@@ -100,15 +112,19 @@ class ReplayCamera(CameraSource):
         if not self.path.exists():
             raise CameraUnavailable(f"replay {self.path}: no such file or folder")
         if self.path.is_file():
-            raise CameraUnavailable(f"replay {self.path}: expected a folder of scene files or images "
-                                    "(video files play through the opencv backend)")
+            raise CameraUnavailable(
+                f"replay {self.path}: expected a folder of scene files or images "
+                "(video files play through the opencv backend)"
+            )
         scenes = sorted(self.path.glob("*.npz"))
         images = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if scenes:
             self._it = _scene_items(scenes, self.role)
         elif images:
             if self.stage is None:
-                raise CameraUnavailable(f"replay {self.path}: image folder needs a detector stage (model + calibration)")
+                raise CameraUnavailable(
+                    f"replay {self.path}: image folder needs a detector stage (model + calibration)"
+                )
             self._it = self._image_items(images)
         else:
             raise CameraUnavailable(f"replay {self.path}: no *.npz scene files and no images")
@@ -139,6 +155,7 @@ class ReplayCamera(CameraSource):
             self._camera = item
         elif item is not None:
             import itertools
+
             self._it = itertools.chain([item], self._it)
 
     def read(self, timeout: float) -> Detections | None:
@@ -147,7 +164,9 @@ class ReplayCamera(CameraSource):
         while True:
             item = next(self._it, None)
             if item is None:
-                raise EndOfStream(f"replay {self.path or '<frames>'}: end after {self._count} frames")
+                raise EndOfStream(
+                    f"replay {self.path or '<frames>'}: end after {self._count} frames"
+                )
             if isinstance(item, CameraModel):
                 self._camera = item
                 continue

@@ -23,13 +23,21 @@ class SimCamera(CameraSource):
 
     name = "sim"
 
-    def __init__(self, seed: int = 1, mode: str = "mixed", role: str = "ego", rate_hz: float = 20.0,
-                 clock: Callable[[], float] = time.time, sleep: Callable[[float], None] = time.sleep,
-                 scenario=None) -> None:
+    def __init__(
+        self,
+        seed: int = 1,
+        mode: str = "mixed",
+        role: str = "ego",
+        rate_hz: float = 20.0,
+        clock: Callable[[], float] = time.time,
+        sleep: Callable[[float], None] = time.sleep,
+        scenario=None,
+    ) -> None:
         if role not in ("ego", "cav"):
             raise ValueError(f"role must be ego or cav, not {role!r}")
         if scenario is None:
             from mmatch.sim.scenario import make_scenario
+
             scenario = make_scenario(seed, mode)
         self.scenario = scenario
         self.role = role
@@ -45,7 +53,9 @@ class SimCamera(CameraSource):
     def read(self, timeout: float) -> Detections | None:
         now = self.clock()
         tick = math.floor(now / self.period) + 1 if self._next_tick is None else self._next_tick
-        if (tick + 1) * self.period < now:          # fell behind: jump to the newest frame, as a camera would
+        if (
+            tick + 1
+        ) * self.period < now:  # fell behind: jump to the newest frame, as a camera would
             tick = math.floor(now / self.period)
         t = tick * self.period
         if t - now > timeout:
@@ -56,8 +66,11 @@ class SimCamera(CameraSource):
         obs = self.scenario.observe(self.role, t)
         self._next_tick = tick + 1
         self._frames += 1
-        return Detections(boxes=np.asarray(obs.boxes, np.float32), features=np.asarray(obs.features, np.float32),
-                          stamp=float(t))
+        return Detections(
+            boxes=np.asarray(obs.boxes, np.float32),
+            features=np.asarray(obs.features, np.float32),
+            stamp=float(t),
+        )
 
     def counters(self) -> dict[str, int]:
         return {"frames": self._frames}
