@@ -68,3 +68,19 @@ def test_bench_quick_smoke():
     )
     assert out["loopback_frames"] == out["loopback_frames_sent"] == out["loopback_frames_exact"]
     assert out["loopback_mb_per_s"] > 0
+
+
+def test_dsp_command_options(tmp_path, radar_cfg):
+    geom = FrameGeometry.from_chirp(radar_cfg.chirp)
+    cap = tmp_path / "c_Raw_0.bin"
+    cap.write_bytes(synth_raw_frames(radar_cfg.chirp, geom, [Target(25.0, 0.0, -30.0)], 4))
+    out = tmp_path / "p.json"
+    argv = ["dsp", "--cfg", str(CFG_PATH), "--adc", str(cap), "--json", str(out)]
+    assert main([*argv, "--max-frames", "2", "--cfar", "os"]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["frames"] == 2 and doc["points_per_frame"] == [1, 1]
+    assert doc["points"][0][0][0] < 0  # left
+    assert main([*argv, "--clutter-removal", "on"]) == 0  # a static target disappears
+    assert json.loads(out.read_text())["points_per_frame"] == [0, 0, 0, 0]
+    assert main([*argv, "--mirror-x"]) == 0  # the same capture read as a mirrored board
+    assert json.loads(out.read_text())["points"][0][0][0] > 0
