@@ -11,6 +11,7 @@ the rest keeps running. Health goes to the log, to systemd ($NOTIFY_SOCKET) and 
 from __future__ import annotations
 
 import collections
+import gc
 import json
 import logging
 import queue
@@ -194,6 +195,8 @@ class VehicleLoop:
                                      vehicles=list(cfg.ego.cavs) or None)
         if self.node is not None:
             self.node.warm_up()
+        gc.collect()
+        gc.freeze()  # start-up objects leave the collector's view: shorter pauses per frame
         readers = [SensorReader("radar", self.radar, self.radar_q.put, self.stop, cfg.radar.reconnect_s,
                                 cfg.radar.read_timeout_s)]
         if cfg.camera.source not in ("none",):
