@@ -74,6 +74,7 @@ REASONS: tuple[str, ...] = (
 )
 
 _TLV_HDR = struct.Struct("<2I")
+_U32 = struct.Struct("<I")
 # TLVs that carry the points: a malformed one rejects the frame (others are kept raw)
 _POINT_TLVS = frozenset({1, 7, 301, 1020})
 _PC3D_POINT_TLVS = frozenset({6})
@@ -145,10 +146,14 @@ def decode_frame(buf: bytes | bytearray, offset: int = 0, end: int | None = None
     # Decide nothing before the largest header plus a magic word's length is in (or the
     # stream ended, or a later magic word shows up): the verdict, and its reason, then do
     # not depend on how the bytes were chunked.
-    head_stop = min(end, offset + _HEAD_REGION)
     if avail < _HEAD_REGION and not final and _later_magic(buf, offset, end) < 0:
         return _NEED_MORE
-    inner = _later_magic(buf, offset, head_stop)
+    head_stop = offset + _HEAD_REGION
+    if avail >= 16:  # a tiny unpadded packet (SDK 1.x, no TLVs) may end inside that region
+        total = _U32.unpack_from(buf, offset + 12)[0]
+        if total >= HeaderFormat.H36.size:
+            head_stop = min(head_stop, offset + total + len(MAGIC) - 1)
+    inner = _later_magic(buf, offset, min(end, head_stop))
     if inner >= 0:
         return _reject("magic_inside_packet", f"magic word at +{inner - offset} inside the header")
     if avail < 20:

@@ -173,3 +173,20 @@ def test_wrong_port_or_baud_hint_logged_once(caplog):
             r.feed(junk[k:k + 10_000])
     hints = [rec for rec in caplog.records if "baud" in rec.getMessage()]
     assert len(hints) == 1 and "921600" in hints[0].getMessage()
+
+
+def test_tiny_unpadded_sdk1_frames_back_to_back():
+    from drivers.ti.header import FrameHeader, HeaderFormat
+
+    def bare(fn, fmt, size):  # SDK 1.x: header only, no TLVs, no padding
+        return FrameHeader(fmt, 0x01020000, size, 0xA1642, fn, 0).to_bytes()
+
+    data = bare(1, HeaderFormat.H40, 40) + bare(2, HeaderFormat.H40, 40) + bare(3, HeaderFormat.H40, 40)
+    for chunk in (None, 1, 9):
+        packets, st = read_all(data, chunk=chunk)
+        assert [p.header.frame_number for p in packets] == [1, 2, 3], chunk
+        assert st.rejected_total == 0 and all(p.points.shape == (0, 5) for p in packets)
+    h36 = b"".join(FrameHeader(HeaderFormat.H36, 0x01000000, 36, 0xA1443, fn, 0).to_bytes()
+                   for fn in (7, 8))
+    packets, st = read_all(h36, chunk=5)
+    assert [(p.header.frame_number, p.header.size) for p in packets] == [(7, 36), (8, 36)]
