@@ -379,3 +379,79 @@ def estimate_T_cam_radar(
     proj, _ = cv2.projectPoints(obj[inl], rvec, tvec, K, d)
     rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img[inl]) ** 2, axis=1))))
     return T, {"rms_px": rms, "inliers": np.flatnonzero(ok)[inl], "n": int(len(obj))}
+
+
+def collect_pairs(
+    frames: list[tuple[np.ndarray, np.ndarray]],
+    K: np.ndarray,
+    T_guess: np.ndarray,
+    dist: np.ndarray | None = None,
+    max_px: float = 80.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unambiguous radar/box pairs of a recording, under an approximate extrinsic.
+
+    frames: per frame, (centroids (K, 3) radar-frame vehicle positions, m; boxes (M, >=4) px as
+        detected). A pair is kept when the centroid's projection (with `T_guess`) and the box
+        centre are each other's nearest, within `max_px`, and the second-nearest candidate is
+        at least twice as far on both sides (crowded frames give no pair).
+    Returns (points (P, 3), pixels (P, 2)) for `estimate_T_cam_radar`.
+    """
+    import cv2
+
+    pts_out, px_out = [], []
+    d = np.zeros(5) if dist is None else np.asarray(dist, np.float64)
+    R, t = np.asarray(T_guess, np.float64)[:3, :3], np.asarray(T_guess, np.float64)[:3, 3]
+    rvec, _ = cv2.Rodrigues(R)
+    for centroids, boxes in frames:
+        c = np.asarray(centroids, np.float64).reshape(-1, 3)
+        b = np.asarray(boxes, np.float64)
+        if len(c) == 0 or b.size == 0:
+            continue
+        b = b.reshape(len(b), -1)
+        front = (c @ R.T + t)[:, 2] > 0.5
+        c = c[front]
+        if len(c) == 0:
+            continue
+        proj, _ = cv2.projectPoints(c, rvec, t, K, d)
+        proj = proj.reshape(-1, 2)
+        centres = np.stack([(b[:, 0] + b[:, 2]) / 2, (b[:, 1] + b[:, 3]) / 2], 1)
+        dm = np.linalg.norm(proj[:, None] - centres[None], axis=2)  # (K, M)
+        best_box = dm.argmin(1)
+        best_pt = dm.argmin(0)
+        for i, j in enumerate(best_box):
+            if best_pt[j] != i or dm[i, j] > max_px:
+                continue
+            row = np.sort(dm[i])
+            col = np.sort(dm[:, j])
+            if (len(row) > 1 and row[1] < 2 * row[0]) or (len(col) > 1 and col[1] < 2 * col[0]):
+                continue
+            pts_out.append(c[i])
+            px_out.append(centres[j])
+    if not pts_out:
+        return np.zeros((0, 3)), np.zeros((0, 2))
+    return np.asarray(pts_out), np.asarray(px_out)
+
+
+def estimate_T_cam_radar_from_recording(
+    frames: list[tuple[np.ndarray, np.ndarray]],
+    K: np.ndarray,
+    T_guess: np.ndarray,
+    dist: np.ndarray | None = None,
+    max_px: float = 80.0,
+    rounds: int = 3,
+) -> tuple[np.ndarray, dict]:
+    """Alternate pairing (`collect_pairs`) and estimation (`estimate_T_cam_radar`), narrowing
+    the pairing gate each round (max_px, max_px / 2, ... down to 10 px). Starts from the
+    nominal mounting `T_guess`; returns (T_cam_radar, info) of the last round, with
+    info["pairs"] the number of pairs used."""
+    T = np.asarray(T_guess, np.float64)
+    info: dict = {}
+    gate = max_px
+    for _ in range(max(1, rounds)):
+        pts, px = collect_pairs(frames, K, T, dist, gate)
+        T, info = estimate_T_cam_radar(
+            pts, px, K, dist, T_init=T, reprojection_px=max(gate / 4, 4.0)
+        )
+        info["pairs"] = int(len(pts))
+        gate = max(gate / 2, 10.0)
+    return T, info

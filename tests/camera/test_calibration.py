@@ -191,3 +191,43 @@ def test_estimate_needs_enough_pairs():
         estimate_T_cam_radar(pts, uv, c.K)
     with pytest.raises(EstimationError, match="pixels"):
         estimate_T_cam_radar(pts, uv[:3], c.K)
+
+
+def test_extrinsic_from_a_recording_with_a_rough_start():
+    """Frames of vehicle centroids + boxes (with clutter: false boxes, vehicles without a box),
+    a nominal mounting 2 deg and 15 cm off: pairing and estimation converge to the truth."""
+    from drivers.camera.calibration import collect_pairs, estimate_T_cam_radar_from_recording
+
+    c = load_calibration(EXAMPLE)
+    rng = np.random.default_rng(7)
+    frames = []
+    for _ in range(40):
+        n = rng.integers(1, 5)
+        pts = np.c_[rng.uniform(-12, 12, n), rng.uniform(8, 60, n), rng.uniform(-0.3, 0.6, n)]
+        pc = pts @ c.T_cam_radar[:3, :3].T + c.T_cam_radar[:3, 3]
+        uv, _ = cv2.projectPoints(pc, np.zeros(3), np.zeros(3), c.K, c.dist)
+        uv = uv.reshape(-1, 2) + rng.normal(0, 2.0, (n, 2))
+        half = np.c_[np.full(n, 40.0), np.full(n, 25.0)]
+        boxes = np.c_[uv - half, uv + half]
+        keep = rng.uniform(size=n) > 0.15  # some vehicles are not detected
+        boxes = boxes[keep]
+        if rng.uniform() < 0.3:  # a false detection
+            fake = rng.uniform([0, 300], [1200, 650])
+            boxes = np.r_[boxes, [[*fake, *(fake + 60)]]]
+        frames.append((pts, boxes))
+    rot = cv2.Rodrigues(np.deg2rad([1.0, 1.5, 0.5]))[0]
+    T0 = c.T_cam_radar.copy()
+    T0[:3, :3] = rot @ T0[:3, :3]
+    T0[:3, 3] += (0.1, -0.1, 0.05)
+    pts, px = collect_pairs(frames, c.K, T0, c.dist)
+    assert len(pts) >= 20
+
+    def angle_to_truth(T):
+        dR = T[:3, :3].T @ c.T_cam_radar[:3, :3]
+        return np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
+
+    assert angle_to_truth(T0) > 1.5  # the start is really off
+    T, info = estimate_T_cam_radar_from_recording(frames, c.K, T0, c.dist)
+    assert angle_to_truth(T) < 0.3
+    assert np.linalg.norm(T[:3, 3] - c.T_cam_radar[:3, 3]) < 0.2
+    assert info["pairs"] >= 40 and info["rms_px"] < 4.0
