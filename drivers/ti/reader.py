@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 from drivers.ti.decoder import NEED_MORE, OK, REJECT, DecodeResult, TiPacket, decode_frame
 from drivers.ti.header import MAGIC, HeaderFormat
 from drivers.ti.tlv import RawTlv
-from mmatch.errors import DecodeError
+from mmatch.errors import ConfigError, DecodeError
 from mmatch.types import RadarFrame
 
 if TYPE_CHECKING:
@@ -86,7 +86,7 @@ class TlvReader:
                  chirp: ChirpParams | None = None, keep: int = 10000,
                  clock: Callable[[], float] = time.time, read_size: int = 65536) -> None:
         if on_error not in POLICIES:
-            raise ValueError(f"on_error must be one of {POLICIES}, not {on_error!r}")
+            raise ConfigError(f"on_error must be one of {POLICIES}, not {on_error!r}")
         self.source = source
         self.on_error = on_error
         self.chirp = chirp

@@ -12,7 +12,7 @@ from drivers.ti.writer import encode_frame
 
 from .helpers import all_tlv_messages, make_points
 
-FORMATS = ("sdk3", "sdk2", "xwr14xx", "toolbox", "pc3d")
+FORMATS = ("sdk3", "sdk2", "sdk1", "xwr14xx", "toolbox", "pc3d")
 N_FRAMES = 24
 
 
