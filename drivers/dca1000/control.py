@@ -141,6 +141,17 @@ class Dca1000Control:
                 return
             self._note_stray(buf)
 
+    def poll_events(self) -> list[tuple[float, int, str]]:
+        """Read pending asynchronous reports (e.g. 'LVDS buffer full') without sending anything.
+
+        Returns the new (host time, status, text) events; all are also kept in `async_events`.
+        """
+        if self._sock is None:
+            raise DeviceError("DCA1000 control client is closed")
+        before = len(self.async_events)
+        self._drain()
+        return self.async_events[before:]
+
     def _note_stray(self, buf: bytes) -> None:
         try:
             r = ResponsePacket.from_bytes(buf)

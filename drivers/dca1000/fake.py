@@ -90,6 +90,7 @@ class FakeDca1000:
         self.packet_config: PacketConfig | None = None
         self.dropped: np.ndarray = np.zeros(0, dtype=np.int64)
         self.sent_packets = 0
+        self.client: tuple[str, int] | None = None
         self.stream_seconds = 0.0
         self.stream_done = threading.Event()
         self._ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -138,6 +139,7 @@ class FakeDca1000:
                 log.warning("fake DCA1000: bad command %s: %s", buf[:16].hex(), exc)
                 continue
             self.commands.append((packet.cmd, packet.data))
+            self.client = sender
             if self.mute > 0:
                 self.mute -= 1
                 continue
@@ -177,6 +179,29 @@ class FakeDca1000:
         if cmd in Cmd._value2member_map_:
             return 0
         return 1
+
+    def report(self, status: int) -> None:
+        """Send an async SYSTEM_ERROR report (e.g. 9 = LVDS buffer full) to the last client."""
+        if self.client is None:
+            raise RuntimeError("no client has talked to the fake DCA1000 yet")
+        self._ctl.sendto(ResponsePacket(Cmd.SYSTEM_ERROR, status).to_bytes(), self.client)
+
+    @classmethod
+    def from_capture(
+        cls, path, frame_bytes: int, data_dest: tuple[str, int], num_frames: int | None = None, **kw
+    ) -> "FakeDca1000":
+        """Replay a recorded *_Raw_*.bin capture (its trailing packet padding is dropped);
+        num_frames defaults to the frames in the file."""
+        from pathlib import Path
+
+        data = Path(path).read_bytes()
+        extra = len(data) % frame_bytes
+        if extra and (extra >= MAX_PAYLOAD_BYTES or any(data[-extra:])):
+            raise ValueError(
+                f"{path}: {len(data)} bytes is not a whole number of {frame_bytes}-byte frames"
+            )
+        data = data[: len(data) - extra]
+        return cls(data, frame_bytes, num_frames or len(data) // frame_bytes, data_dest, **kw)
 
     # -- data ------------------------------------------------------------------------------------
     def start_stream(self) -> None:

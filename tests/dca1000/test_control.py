@@ -115,3 +115,16 @@ def test_close_twice_is_safe():
         ctl.close()
         ctl.close()
     fake.close()
+
+
+def test_async_report_is_polled_without_a_command():
+    with _fake() as fake, _client(fake) as ctl:
+        ctl.connect()
+        fake.report(9)
+        deadline = time.monotonic() + 2.0
+        events = []
+        while not events and time.monotonic() < deadline:
+            events = ctl.poll_events()
+            time.sleep(0.01)
+        assert [(s, t) for _, s, t in events] == [(9, "LVDS buffer full")]
+        assert ctl.poll_events() == []

@@ -148,3 +148,26 @@ def test_corrupt_datagrams_flag_only_their_frame(batch):
     assert {f.index for f in frames if not f.complete} == {bad_i * P // F}
     assert all(_exact(f) for f in frames if f.complete)
     assert asm.stats.bad_packets == 3
+
+
+def test_fake_replays_a_recorded_capture(tmp_path):
+    cap = tmp_path / "adc_data_Raw_0.bin"
+    cap.write_bytes(SRC[: 3 * F] + bytes(700))  # 3 frames + the FPGA's last-packet padding
+    asm = FrameAssembler(F, num_frames=3)
+    with (
+        DataReceiver(asm, host="127.0.0.1", port=0) as rx,
+        FakeDca1000.from_capture(cap, F, rx.address, rate_mb_s=40) as fake,
+    ):
+        assert fake.num_frames == 3
+        fake.start_stream()
+        frames = list(rx.frames(idle_timeout_s=0.5, deadline_s=10))
+    assert [f.index for f in frames] == [0, 1, 2] and all(f.complete and _exact(f) for f in frames)
+
+
+def test_small_kernel_buffer_is_reported(caplog):
+    import logging
+
+    with caplog.at_level(logging.WARNING, logger="drivers.dca1000.receiver"):
+        with DataReceiver(FrameAssembler(F), host="127.0.0.1", port=0, rcvbuf=1 << 30) as rx:
+            assert 0 < rx.rcvbuf < 1 << 30
+    assert "rmem_max" in caplog.text
