@@ -65,7 +65,8 @@ def _cxcywh_to_xyxy(c: np.ndarray) -> np.ndarray:
     """(K, 4) cx, cy, w, h -> x1, y1, x2, y2 (float32)."""
     c = c.astype(np.float32, copy=False)
     half = c[:, 2:4] * 0.5
-    return np.concatenate([c[:, 0:2] - half, c[:, 0:2] + half], axis=1)
+    with np.errstate(invalid="ignore", over="ignore"):  # inf/NaN outputs are dropped by suppress()
+        return np.concatenate([c[:, 0:2] - half, c[:, 0:2] + half], axis=1)
 
 
 def _top_k(scores: np.ndarray, k: int) -> np.ndarray:
@@ -99,7 +100,8 @@ def decode_yolov5(
     rows = a[cand]
     cls_cols = rows[:, 5 : 5 + nc] if classes is None else rows[:, [5 + c for c in classes]]
     best = np.argmax(cls_cols, axis=1)
-    scores = rows[:, 4] * cls_cols[np.arange(len(rows)), best]
+    with np.errstate(invalid="ignore", over="ignore"):
+        scores = rows[:, 4] * cls_cols[np.arange(len(rows)), best]
     keep = np.flatnonzero(scores > score_threshold)
     keep = keep[_top_k(scores[keep], top_k)]
     rows, best, scores = rows[keep], best[keep], scores[keep]
@@ -210,7 +212,20 @@ def suppress(
     dec: Decoded, iou_threshold: float = 0.45, agnostic: bool = True, max_detections: int = 100
 ) -> Decoded:
     """NMS over decoded candidates (class-agnostic by default: a car and a truck box on the same
-    vehicle are one vehicle). Returns the kept candidates, highest score first."""
+    vehicle are one vehicle). Returns the kept candidates, highest score first.
+
+    Candidates with a non-finite coordinate, score or depth, or with zero/negative size, are
+    dropped first (a broken model output never becomes a NaN box downstream)."""
+    ok = (
+        np.isfinite(dec.boxes).all(axis=1)
+        & np.isfinite(dec.scores)
+        & (dec.boxes[:, 2] > dec.boxes[:, 0])
+        & (dec.boxes[:, 3] > dec.boxes[:, 1])
+    )
+    if dec.depth is not None:
+        ok &= np.isfinite(dec.depth)
+    if not ok.all():
+        dec = dec.take(np.flatnonzero(ok))
     keep = nms(
         dec.boxes, dec.scores, iou_threshold, None if agnostic else dec.classes, max_detections
     )

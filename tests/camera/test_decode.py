@@ -1,5 +1,8 @@
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from drivers.camera.decode import decode_centernet, decode_yolov5, decode_yolov8, suppress
 from drivers.camera.nms import box_iou, nms
@@ -165,3 +168,32 @@ def test_nms_matrix_and_loop_paths_agree(monkeypatch):
     np.testing.assert_array_equal(a, b)
     full = nms(boxes, scores, 0.4, max_detections=1000)
     np.testing.assert_array_equal(nms(boxes, scores, 0.4, max_detections=7), full[:7])
+
+
+def test_non_finite_and_empty_candidates_are_dropped():
+    out, idx = yolov8_output(extra=[10.0, np.nan, 30.0])
+    out[0, 0, idx[0]] = np.nan  # first true box: NaN centre
+    dec = suppress(decode_yolov8(out, 0.3, num_classes=8, depth_index=12), 0.5)
+    assert np.isfinite(dec.boxes).all() and np.isfinite(dec.depth).all()
+    # box 0 (NaN centre) and box 1 (NaN depth) are dropped; their weaker duplicates (finite,
+    # depth 0) remain, so each vehicle is still found once, with finite values
+    assert len(dec) == 3
+    zero = np.zeros((1, 12, 10), np.float32)
+    zero[0, 4] = 0.9  # confident but zero-size boxes
+    assert len(suppress(decode_yolov8(zero, 0.3))) == 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    arrays(
+        np.float32,
+        (1, 10, 30),
+        elements=st.one_of(
+            st.floats(-1e4, 1e4, width=32), st.sampled_from([np.nan, np.inf, -np.inf])
+        ),
+    ),
+)
+def test_decode_never_emits_bad_boxes(raw):
+    dec = suppress(decode_yolov8(raw, 0.25), 0.45)
+    assert np.isfinite(dec.boxes).all() and np.isfinite(dec.scores).all()
+    assert (dec.boxes[:, 2] > dec.boxes[:, 0]).all() and (dec.scores > 0.25).all()
