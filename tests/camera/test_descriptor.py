@@ -1,5 +1,8 @@
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from drivers.camera.descriptor import (
     HUE_BINS,
@@ -102,3 +105,23 @@ def test_painted_vehicles_are_told_apart_by_colour():
     red = [i for i, n in enumerate(names) if n == "red"]
     others = [i for i, n in enumerate(names) if n != "red"]
     assert dist[red[0], red[1]] < 0.5 * dist[red[0], others].min()
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.integers(1, 40),
+    st.integers(1, 40),
+    arrays(
+        np.float64,
+        st.tuples(st.integers(0, 6), st.just(4)),
+        elements=st.one_of(st.floats(-100, 100), st.sampled_from([np.nan, np.inf, -np.inf])),
+    ),
+    st.integers(0, 2**32 - 1),
+)
+def test_any_boxes_give_normalised_finite_descriptors(w, h, boxes, seed):
+    img = np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8)
+    d = hsv_descriptor(img, boxes)
+    assert d.shape == (len(boxes), 32) and np.isfinite(d).all() and (d >= 0).all()
+    for g in _groups(d):
+        np.testing.assert_allclose(g.sum(1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(d, hsv_descriptor_reference(img, boxes), atol=1e-6)

@@ -307,3 +307,18 @@ def test_calibration_from_factory_handler(tmp_path):
     p.write_text(dumps_calibration(c))
     again = load_calibration(p)
     np.testing.assert_array_equal(again.K, c.K)
+
+
+def test_frames_waiting_for_detections_are_bounded(tmp_path, monkeypatch):
+    import drivers.camera.sources.oak as oak
+
+    frames = FakeQueue([FakeFrame(i, np.zeros((H, W, 3), np.uint8)) for i in range(100)])
+    monkeypatch.setattr(
+        oak, "build_oak_pipeline", lambda *a, **k: oak.OakQueues(FakeQueue([]), frames)
+    )
+    cam = OakCamera(
+        OakConfig(model=make_archive(tmp_path / "m.tar.xz")), CALIB, pipeline_factory=FakePipeline
+    )
+    with cam:
+        assert cam.read(0.01) is None
+        assert len(cam._frames) == oak._MAX_PENDING_FRAMES and max(cam._frames) == 99

@@ -40,6 +40,7 @@ from mmatch.types import CameraModel
 log = logging.getLogger(__name__)
 
 ARCHIVE_SUFFIXES = (".tar.xz", ".tar.gz", ".tgz", ".tar")
+_MAX_PENDING_FRAMES = 16  # colour frames kept while waiting for their detections
 
 
 def import_depthai():
@@ -295,6 +296,10 @@ class OakCamera(CameraSource):
                     raise CameraUnavailable("oak: pipeline stopped (device disconnected?)")
                 for f in self._queues.frames.tryGetAll() or []:
                     self._frames[f.getSequenceNum()] = f
+                while (
+                    len(self._frames) > _MAX_PENDING_FRAMES
+                ):  # detections stalled: keep the newest
+                    del self._frames[min(self._frames)]
                 msg = self._queues.detections.tryGet()
                 if msg is not None:
                     break

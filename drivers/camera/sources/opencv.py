@@ -3,7 +3,10 @@
 `device` strings: "0" (index), "/dev/video0" (V4L2), anything containing "!" (GStreamer
 pipeline ending in appsink), else a video file path. Frames go through the ONNX detector,
 descriptor, undistortion and depth (`DetectionStage`). Stamps: the host clock at grab time
-for live devices; for a video file, the file's position (CAP_PROP_POS_MSEC) from `start_stamp`.
+minus `latency_s` (the camera's exposure-to-delivery delay, if known) for live devices; for a
+video file, the file's position (CAP_PROP_POS_MSEC) from `start_stamp`. `read` blocks until
+the device delivers a frame (V4L2 gives up after its own select timeout, ~10 s); run it on its
+own thread (the vehicle loop does, as does `ResilientCamera`).
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ class OpenCvCamera(ImageCameraBase):
         width: int | None = None,
         height: int | None = None,
         fps: float | None = None,
+        latency_s: float = 0.0,
     ) -> None:
         super().__init__(stage, clock)
         self.device = device
@@ -57,6 +61,7 @@ class OpenCvCamera(ImageCameraBase):
         self._start_stamp = start_stamp
         self._size = (width, height)
         self._fps = fps
+        self.latency_s = latency_s
 
     def open(self) -> None:
         import cv2
@@ -97,7 +102,7 @@ class OpenCvCamera(ImageCameraBase):
         if self.kind == "file":
             stamp = self._start_stamp + self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1e3
         else:
-            stamp = self.clock()
+            stamp = self.clock() - self.latency_s
         return image, stamp
 
     def close(self) -> None:
