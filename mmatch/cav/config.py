@@ -60,16 +60,24 @@ class SeparationConfig:
         noise, 0.3-2.5 deg); a box touching the image's left or right edge opens its wedge
         to that side (the vehicle continues outside the image).
     min_box_score: boxes scoring below this are ignored (not vehicles).
+    moving_ratio: a box is a moving vehicle when it claims at least one moving point and at
+        least `moving_ratio` times as many moving as stationary points; otherwise it is
+        parked (a lone ghost or clutter point in a parked car's box does not make it move).
+    parked_keep_points: a box that is not moving (parked car, or a vehicle crossing
+        the line of sight) keeps the stationary points it claims as its vehicle points; when
+        False they go to the background and the vehicle is shared without points.
     min_camera_z_m: points closer than this in front of the camera never project.
     """
 
     delta_d_m: float = 3.0
     depth_rel: float = 0.15
     moving_depth_rel: float = 0.3
-    box_margin_px: float = 8.0
-    bearing_margin_deg: float = 1.0
+    box_margin_px: float = 0.0
+    bearing_margin_deg: float = 0.5
     min_box_score: float = 0.0
     min_camera_z_m: float = 0.5
+    parked_keep_points: bool = True
+    moving_ratio: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -88,6 +96,7 @@ class ClusteringConfig:
     eps_m: float = 6.0
     min_samples: int = 1
     velocity_scale_s: float = 1.0
+    parked_eps_m: float = 6.0
 
 
 @dataclass(frozen=True)
@@ -156,6 +165,7 @@ def _check(cfg: CavConfig) -> None:
                 ("egomotion.hypotheses", cfg.egomotion.hypotheses),
                 ("egomotion.min_pair_sin", cfg.egomotion.min_pair_sin),
                 ("clustering.eps_m", cfg.clustering.eps_m),
+                ("clustering.parked_eps_m", cfg.clustering.parked_eps_m),
                 ("clustering.min_samples", cfg.clustering.min_samples),
                 ("background.eps_m", cfg.background.eps_m),
                 ("background.min_samples", cfg.background.min_samples),
@@ -167,7 +177,7 @@ def _check(cfg: CavConfig) -> None:
                     ("separation.depth_rel", cfg.separation.depth_rel),
                     ("separation.moving_depth_rel", cfg.separation.moving_depth_rel),
                     ("separation.bearing_margin_deg", cfg.separation.bearing_margin_deg),
-                    ("separation.box_margin_px", cfg.separation.box_margin_px),
+                    ("separation.moving_ratio", cfg.separation.moving_ratio),
                     ("clustering.velocity_scale_s", cfg.clustering.velocity_scale_s)]
     for key, value in positive:
         if not value > 0:

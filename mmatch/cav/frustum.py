@@ -111,7 +111,8 @@ def separate(points: np.ndarray, moving: np.ndarray, boxes: np.ndarray, camera: 
     u, v = pr.uv[:, 0:1], pr.uv[:, 1:2]
     with np.errstate(invalid="ignore"):
         wedge = pr.front[:, None] & (u >= lo[None, :]) & (u <= hi[None, :])
-        in_box = wedge & (v >= b[None, :, 1] - mg) & (v <= b[None, :, 3] + mg)
+        in_box = pr.front[:, None] & (u >= b[None, :, 0] - mg) & (u <= b[None, :, 2] + mg) \
+            & (v >= b[None, :, 1] - mg) & (v <= b[None, :, 3] + mg)
     gap = np.abs(pr.bev_range[:, None] - b[None, :, 5])                 # (N, M)
     near = gap <= cfg.delta_d_m + cfg.depth_rel * b[None, :, 5]
     near_moving = gap <= cfg.delta_d_m + cfg.moving_depth_rel * b[None, :, 5]
