@@ -47,6 +47,8 @@ class DetectorConfig:
     num_classes: number of class columns (None: all columns after the box/objectness ones);
         needed when the output carries extra columns such as a depth.
     depth_index: YOLO only: column (index in the per-anchor vector) of a per-box depth in metres.
+    output_name: YOLO only: which output holds the predictions when the model has several
+        (e.g. older exports that also output the raw heads, or -seg models); None: the only one.
     centernet_heads: output names of (heatmap, size, offset, depth); missing optional heads
         (offset, depth) are allowed. centernet_depth_is_metres: the depth head is metres
         (else CenterNet's 1/sigmoid(x) - 1). centernet_sigmoid: None decides from the values.
@@ -67,6 +69,7 @@ class DetectorConfig:
     centernet_heads: tuple[str, ...] = _CENTERNET_HEADS
     centernet_depth_is_metres: bool = False
     centernet_sigmoid: bool | None = None
+    output_name: str | None = None
     letterbox: bool = True
     pad_value: int = 114
     rgb: bool = True
@@ -262,9 +265,16 @@ class OnnxDetector:
             if v5
             else "one output (1, 4 + C, N) (cx, cy, w, h, classes)"
         )
-        if len(shapes) != 1:
-            raise self._fail(expected, shapes)
-        shape = next(iter(shapes.values()))
+        if cfg.output_name is not None:
+            if cfg.output_name not in shapes:
+                raise self._fail(
+                    f"{expected} named {cfg.output_name!r} (detector.output_name)", shapes
+                )
+            shape = shapes[cfg.output_name]
+        elif len(shapes) != 1:
+            raise self._fail(f"{expected} (or set detector.output_name to one of them)", shapes)
+        else:
+            shape = next(iter(shapes.values()))
         if len(shape) != 3 or shape[0] != 1:
             raise self._fail(expected, shapes)
         width, n = (shape[2], shape[1]) if v5 else (shape[1], shape[2])
@@ -288,6 +298,9 @@ class OnnxDetector:
         if cfg.classes is not None and (min(cfg.classes) < 0 or max(cfg.classes) >= nc):
             raise self._fail(f"{expected} with classes {cfg.classes} < C", shapes)
         self.num_classes = nc
+        self._yolo_index = (
+            0 if cfg.output_name is None else self._output_names.index(cfg.output_name)
+        )
 
     def _heads(self, shapes: dict) -> list[str | None]:
         names = list(self.config.centernet_heads) + [None] * (4 - len(self.config.centernet_heads))
@@ -376,7 +389,7 @@ class OnnxDetector:
         else:
             fn = decode_yolov5 if cfg.kind == "yolov5" else decode_yolov8
             dec = fn(
-                outputs[0],
+                outputs[self._yolo_index],
                 cfg.score_threshold,
                 cfg.classes,
                 cfg.num_classes,

@@ -197,13 +197,20 @@ def test_wrong_output_layout(tmp_path):
     ):
         OnnxDetector(DetectorConfig(model=v5_layout, kind="yolov8"))
     assert OnnxDetector(DetectorConfig(model=v5_layout, kind="yolov5")).num_classes == 79
+    b_out = np.zeros((1, 6, 100), np.float32)
+    b_out[0, :, 3] = (32, 32, 10, 20, 0.9, 0.0)  # one box in output "b" only
     two = _write(
         tmp_path,
         "two.onnx",
-        ob.constant_model({"a": np.zeros((1, 6, 100)), "b": np.zeros((1, 6, 100))}, (1, 3, 64, 64)),
+        ob.constant_model({"a": np.zeros((1, 6, 100)), "b": b_out}, (1, 3, 64, 64)),
     )
-    with pytest.raises(ModelError, match=r"two\.onnx.*one output"):
+    with pytest.raises(ModelError, match=r"two\.onnx.*one output.*output_name"):
         OnnxDetector(DetectorConfig(model=two))
+    picked = OnnxDetector(DetectorConfig(model=two, output_name="b", letterbox=False))
+    dec = picked.detect(np.zeros((64, 64, 3), np.uint8))
+    assert len(dec) == 1 and dec.boxes[0].tolist() == [27.0, 22.0, 37.0, 42.0]
+    with pytest.raises(ModelError, match=r"named 'c'"):
+        OnnxDetector(DetectorConfig(model=two, output_name="c"))
     with pytest.raises(ModelError, match=r"classes"):
         OnnxDetector(
             DetectorConfig(
