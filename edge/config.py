@@ -129,6 +129,8 @@ class LoopSection:
     queue_size: int = _opt(2, lo=1, hi=1024, doc="per-sensor queue; the oldest frame is dropped")
     camera_tolerance_s: float = _opt(0.1, lo=0.0, lo_open=True, hi=5.0,
                                      doc="max |radar stamp - camera stamp| to use detections, s")
+    camera_wait_s: float = _opt(0.01, lo=0.0, hi=1.0,
+                                doc="wait this long at most for detections at least as new as the radar frame")
     status_interval_s: float = _opt(5.0, lo=0.0, lo_open=True, hi=3600.0)
 
 

@@ -29,6 +29,7 @@ from edge.logschema import SensorFrame
 from edge.node import Node
 from edge.pipeline import Pipeline
 from edge.sources.base import CameraSource, EndOfStream, RadarSource
+from edge.sources.replay import RECORDED_DETECTIONS
 from edge.transport import KeepNewest
 from mmatch.errors import DeviceError, MMatchError
 from mmatch.types import Detections, RadarFrame
@@ -67,15 +68,28 @@ class CameraHistory:
 
     def __init__(self, maxlen: int = 8) -> None:
         self._items: collections.deque[Detections] = collections.deque(maxlen=maxlen)
-        self._lock = threading.Lock()
+        self._cond = threading.Condition()
 
     def put(self, det: Detections) -> None:
-        with self._lock:
+        with self._cond:
             self._items.append(det)
+            self._cond.notify_all()
 
-    def closest(self, stamp: float, tolerance: float) -> Detections | None:
-        with self._lock:
-            best = min(self._items, key=lambda d: abs(d.stamp - stamp), default=None)
+    def _best(self, stamp: float) -> Detections | None:
+        return min(self._items, key=lambda d: abs(d.stamp - stamp), default=None)
+
+    def closest(self, stamp: float, tolerance: float, wait_s: float = 0.0) -> Detections | None:
+        """Detections closest in time to `stamp` within `tolerance` s; waits up to `wait_s`
+        for one at least as new as `stamp` (an image usually lands just after its radar frame)."""
+        deadline = time.monotonic() + wait_s
+        with self._cond:
+            while True:
+                newest = self._items[-1].stamp if self._items else -np.inf
+                left = deadline - time.monotonic()
+                if newest >= stamp or left <= 0:
+                    break
+                self._cond.wait(left)
+            best = self._best(stamp)
         if best is None or not abs(best.stamp - stamp) <= tolerance:
             return None
         return best
@@ -237,7 +251,14 @@ class VehicleLoop:
         return 0
 
     def _step(self, rf: RadarFrame) -> None:
-        det = self.cam_hist.closest(rf.stamp, self.cfg.loop.camera_tolerance_s)
+        if RECORDED_DETECTIONS in rf.device:  # a replayed frame brings what live used
+            det = rf.device[RECORDED_DETECTIONS]
+            det = det if len(det.boxes) or np.isfinite(det.stamp) else None
+        elif self.cfg.camera.source == "none":
+            det = None
+        else:
+            det = self.cam_hist.closest(rf.stamp, self.cfg.loop.camera_tolerance_s,
+                                        wait_s=self.cfg.loop.camera_wait_s)
         if det is None:
             boxes, feats, cam_stamp = np.zeros((0, 6), np.float32), np.zeros((0, 32), np.float32), np.nan
         else:

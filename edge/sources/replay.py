@@ -1,8 +1,8 @@
 """Replay sources: a field log or a raw UART capture as the radar (and camera) of `mmatch run`.
 
-`ReplayRadar` reads `radar.path`: an MCAP log gives its recorded point clouds (and hands
-the recorded detections to a `ReplayCamera` made with `radar=`), a raw UART capture goes
-through the TI streaming reader. Pace per `radar.pace` / `radar.speed`. These sources are
+`ReplayRadar` reads `radar.path`: an MCAP log gives its recorded point clouds and detections, a raw UART capture goes
+through the TI streaming reader. A replayed frame carries the detections the live loop
+used with it. Pace per `radar.pace` / `radar.speed`. These sources are
 lossless: the loop blocks rather than drops, so a replay sees every frame.
 """
 
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from collections.abc import Iterator
 from typing import Any
 
@@ -18,11 +19,13 @@ from edge.config import VehicleConfig
 from edge.logschema import camera_from_meta
 from edge.replay import Pacer, capture_frames, log_events, log_metadata
 from edge.sources.base import CameraSource, EndOfStream, RadarSource, default_camera
-from edge.transport import KeepNewest
 from mmatch.errors import MMatchError
 from mmatch.types import CameraModel, Detections, RadarFrame
 
 log = logging.getLogger(__name__)
+
+#: RadarFrame.device key of the camera detections recorded with a replayed frame
+RECORDED_DETECTIONS = "recorded_detections"
 
 
 class ReplayRadar(RadarSource):
@@ -35,7 +38,6 @@ class ReplayRadar(RadarSource):
         self.report = logreader.LogReport()
         self.capture_stats: dict = {}
         self._it: Iterator[RadarFrame] | None = None
-        self.camera_feed: KeepNewest[Detections] | None = None
         self.frames = 0
         self.radar_height = cfg.radar.height_m
         if self.is_log:
@@ -54,10 +56,11 @@ class ReplayRadar(RadarSource):
                 continue
             pacer.wait(ev.log_time_ns)
             f = ev.frame
-            if self.camera_feed is not None and len(f.boxes):
-                self.camera_feed.put(Detections(boxes=f.boxes, features=f.features,
-                                                stamp=f.camera_stamp if f.camera_stamp == f.camera_stamp else f.stamp))
-            yield RadarFrame(points=f.points, stamp=f.stamp, frame_number=f.frame_number, host_time=f.host_time)
+            # the detections the live loop used with this frame (none is an answer too), so a
+            # replay pairs radar and camera exactly as live did
+            det = Detections(boxes=f.boxes, features=f.features, stamp=f.camera_stamp)
+            yield RadarFrame(points=f.points, stamp=f.stamp, frame_number=f.frame_number, host_time=f.host_time,
+                             device={RECORDED_DETECTIONS: det})
 
     def _capture_frames(self) -> Iterator[RadarFrame]:
         baud = None if self.cfg.radar.pace == "fast" else int(self.cfg.radar.baudrate * self.cfg.radar.speed)
@@ -82,15 +85,13 @@ class ReplayRadar(RadarSource):
 
 
 class ReplayCamera(CameraSource):
-    """The detections recorded in a log, delivered with the replayed radar frames."""
+    """The camera of a replayed log: its camera model; the recorded detections travel with
+    the replayed radar frames (`RECORDED_DETECTIONS`), so `read` has nothing to give."""
 
     lossless = True
 
     def __init__(self, cfg: VehicleConfig, *, radar: RadarSource | None = None, **kw: Any) -> None:
-        self._feed: KeepNewest[Detections] = KeepNewest(64)
-        if isinstance(radar, ReplayRadar):
-            radar.camera_feed = self._feed
-        else:
+        if not isinstance(radar, ReplayRadar):
             log.warning("camera replay without a replay radar: no detections")
         self._camera = default_camera()
         try:
@@ -101,13 +102,15 @@ class ReplayCamera(CameraSource):
                 log.warning("camera replay: %s holds no camera model; using a default", cfg.camera.path)
         except MMatchError as exc:
             log.warning("camera replay: %s; using a default camera model", exc)
+        self._closed = threading.Event()
+
+    def read(self, timeout: float) -> Detections | None:
+        self._closed.wait(timeout)
+        return None
+
+    def close(self) -> None:
+        self._closed.set()
 
     @property
     def camera(self) -> CameraModel:
         return self._camera
-
-    def read(self, timeout: float) -> Detections | None:
-        return self._feed.get(timeout)
-
-    def close(self) -> None:
-        self._feed.close()

@@ -96,3 +96,18 @@ def test_close_is_safe_twice():
     t = Transport(ZenohSection(listen=[f"tcp/127.0.0.1:{free_port()}"])).open()
     t.close()
     t.close()
+
+
+def test_client_mode_reaches_a_listening_node():
+    """A client connects to one endpoint (a router in the field; here a listening peer)."""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    got = threading.Event()
+    with Transport(ZenohSection(listen=[ep])) as hub, \
+            Transport(ZenohSection(mode="client", connect=[ep])) as client:
+        hub.subscribe(keys.fused("ego1"), "fused", lambda v, p: got.set() if p == b"x" else None)
+        assert client.wait_for_peers(5.0)
+        deadline = time.monotonic() + 5
+        while not got.is_set() and time.monotonic() < deadline:
+            client.put(keys.fused("ego1"), b"x")
+            time.sleep(0.05)
+    assert got.is_set()
