@@ -74,6 +74,7 @@ class SeparationConfig:
     moving_depth_rel: float = 0.3
     box_margin_px: float = 0.0
     bearing_margin_deg: float = 0.5
+    elevation_margin_deg: float = 4.0
     min_box_score: float = 0.0
     min_camera_z_m: float = 0.5
     parked_keep_points: bool = True
@@ -177,6 +178,7 @@ def _check(cfg: CavConfig) -> None:
                     ("separation.depth_rel", cfg.separation.depth_rel),
                     ("separation.moving_depth_rel", cfg.separation.moving_depth_rel),
                     ("separation.bearing_margin_deg", cfg.separation.bearing_margin_deg),
+                    ("separation.elevation_margin_deg", cfg.separation.elevation_margin_deg),
                     ("separation.moving_ratio", cfg.separation.moving_ratio),
                     ("clustering.velocity_scale_s", cfg.clustering.velocity_scale_s)]
     for key, value in positive:

@@ -111,8 +111,9 @@ def separate(points: np.ndarray, moving: np.ndarray, boxes: np.ndarray, camera: 
     u, v = pr.uv[:, 0:1], pr.uv[:, 1:2]
     with np.errstate(invalid="ignore"):
         wedge = pr.front[:, None] & (u >= lo[None, :]) & (u <= hi[None, :])
+        mv = mg + float(camera.K[1, 1]) * np.tan(np.radians(min(cfg.elevation_margin_deg, 89.0)))
         in_box = pr.front[:, None] & (u >= b[None, :, 0] - mg) & (u <= b[None, :, 2] + mg) \
-            & (v >= b[None, :, 1] - mg) & (v <= b[None, :, 3] + mg)
+            & (v >= b[None, :, 1] - mv) & (v <= b[None, :, 3] + mv)
     gap = np.abs(pr.bev_range[:, None] - b[None, :, 5])                 # (N, M)
     near = gap <= cfg.delta_d_m + cfg.depth_rel * b[None, :, 5]
     near_moving = gap <= cfg.delta_d_m + cfg.moving_depth_rel * b[None, :, 5]
