@@ -233,9 +233,11 @@ def _decode_as(buf: bytes | bytearray, offset: int, end: int, final: bool, fmt: 
         if stop > pkt_end:
             return _reject("tlv_out_of_bounds",
                            f"TLV {k + 1}/{hdr.num_tlvs} type {ttype}: {length} B run past the packet end")
-        payload = buf[start:stop]
-        if not isinstance(payload, bytes):
-            payload = bytes(payload)
+        if isinstance(buf, bytes):
+            payload = buf[start:stop]
+        else:  # one copy into immutable bytes (the caller's bytearray may be resized later)
+            with memoryview(buf) as mv:
+                payload = bytes(mv[start:stop])
         try:
             if ttype == 1 and fmt is not HeaderFormat.H48:
                 msg: TlvMessage = (DetectedPoints if major >= 3 else DetectedPointsQ).from_bytes(payload)

@@ -16,13 +16,15 @@ sensor restarts (frame number going back) and frame-number gaps.
 from __future__ import annotations
 
 import logging
+import struct
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
-from drivers.ti.decoder import NEED_MORE, OK, REJECT, DecodeResult, TiPacket, decode_frame
+from drivers.ti.decoder import (
+    MAX_PACKET_LEN, NEED_MORE, OK, REJECT, DecodeResult, TiPacket, decode_frame)
 from drivers.ti.header import MAGIC, HeaderFormat
 from drivers.ti.tlv import RawTlv
 from mmatch.errors import ConfigError, DecodeError
@@ -35,6 +37,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 POLICIES = ("skip", "log", "raise")
+_U32 = struct.Struct("<I")
 DATA_BAUD = 921600
 NO_FRAME_HINT_BYTES = 65536
 """After this many bytes without a single frame the reader logs a wrong-port/baud hint once
@@ -94,7 +97,7 @@ class TlvReader:
         self.clock = clock
         self.read_size = read_size
         self.stats = ReaderStats()
-        self._buf = b""
+        self._buf = bytearray()  # appended in place: no quadratic copying while a big frame arrives
         self._base = 0      # stream offset of _buf[0]
         self._pos = 0       # first byte of _buf not yet accounted for (accepted or skipped)
         self._search = 0    # where the next magic search starts
@@ -104,13 +107,14 @@ class TlvReader:
         self._carry: list[TiPacket] = []  # accepted before a "raise" policy error
         self._finished = False
         self._hinted = False
+        self._wait: tuple[int, int, int] | None = None  # (frame start, bytes needed, scanned) in _buf
 
     # ---- push interface ----------------------------------------------------------------
     def feed(self, data: bytes) -> list[TiPacket]:
         """Add bytes; return the packets they complete (in stream order)."""
         if data:
             self.stats.bytes_in += len(data)
-            self._buf = self._buf + bytes(data) if self._buf else bytes(data)
+            self._buf += data
         return self._scan(final=False)
 
     def finish(self) -> list[TiPacket]:
@@ -170,6 +174,14 @@ class TlvReader:
         out, self._carry = self._carry, []
         now: float | None = None
         find = buf.find
+        if self._wait is not None and not final:
+            # a big frame still arriving: only look at the new bytes for a magic word that
+            # would cut it short, instead of decoding it again from the start
+            i, need, scanned = self._wait
+            if len(buf) < need and find(MAGIC, max(i + 8, scanned - len(MAGIC) + 1)) < 0:
+                self._wait = (i, need, len(buf))
+                return out
+        self._wait = None
         while True:
             i = find(MAGIC, search)
             if i < 0:
@@ -198,6 +210,10 @@ class TlvReader:
                 pos = search = i + res.length
             elif res.status == NEED_MORE:
                 search = i
+                if len(buf) - i >= 16:
+                    total = _U32.unpack_from(buf, i + 12)[0]
+                    if len(buf) < i + total <= i + MAX_PACKET_LEN:
+                        self._wait = (i - pos, i + total - pos, len(buf) - pos)  # after _save
                 break
             else:
                 search = i + 1
@@ -213,10 +229,10 @@ class TlvReader:
                         "baud, with a demo firmware that outputs TLVs?", st.bytes_skipped, DATA_BAUD)
         return out
 
-    def _save(self, buf: bytes, pos: int, search: int) -> None:
+    def _save(self, buf: bytearray, pos: int, search: int) -> None:
         if pos:
             self._base += pos
-            buf = buf[pos:]
+            del buf[:pos]
             search -= pos
             pos = 0
         self._buf, self._pos, self._search = buf, pos, search

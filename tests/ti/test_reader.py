@@ -190,3 +190,24 @@ def test_tiny_unpadded_sdk1_frames_back_to_back():
                    for fn in (7, 8))
     packets, st = read_all(h36, chunk=5)
     assert [(p.header.frame_number, p.header.size) for p in packets] == [(7, 36), (8, 36)]
+
+
+def test_big_frame_in_small_reads_and_cut_short():
+    from drivers.ti.tlv import RangeDopplerHeatMap
+
+    heat = RangeDopplerHeatMap(np.arange(300_000, dtype=np.uint32).astype("<u2"))
+    big = encode_frame(make_points(10), 1, "sdk3", extra_tlvs=[heat])
+    nxt = encode_frame(make_points(3), 2, "sdk3")
+    r = TlvReader(on_error="skip")
+    got = []
+    for k in range(0, len(big), 700):
+        got += r.feed(big[k:k + 700])
+    assert [p.header.frame_number for p in got] == [1] and got[0].tlvs[2] == heat
+    # the same frame losing its tail, then the next frame: rejected as soon as it shows
+    r = TlvReader(on_error="skip")
+    cut = big[:400_000] + nxt
+    got = []
+    for k in range(0, len(cut), 700):
+        got += r.feed(cut[k:k + 700])
+    assert [p.header.frame_number for p in got] == [2]
+    assert dict(r.stats.rejected) == {"magic_inside_packet": 1} and r.stats.bytes_skipped == 400_000
