@@ -5,11 +5,16 @@ A target in direction u = (sin(az) cos(el), cos(az) cos(el), sin(el)) reaches vi
 (tx, rx) over a path shorter by (p_tx + p_rx) . u, i.e. with baseband phase -pi * (x u_x + z u_z)
 relative to the origin (the synthesiser and the DSP both use this model).
 
-AWR2243BOOST (same array as AWR1843BOOST): RX0-RX3 on a line at x = 0..3; TX0 at x = 0,
-TX2 at x = 4 (together an 8-element azimuth array), TX1 at x = 2, raised by lambda/2 (z = 1),
-which gives 4 elevation channels. xWR16xxBOOST: TX0 at x = 0, TX1 at x = 4, no elevation.
-The direction of x along the RX line (RX0 leftmost, seen from behind the radar) is an
-assumption: check it once with a corner reflector on the real board (`mirror_x` flips it).
+AWR2243BOOST (same array as AWR1843BOOST), in virtual-antenna index order: RX0-RX3 a
+lambda/2 apart, TX2 2 lambda from TX0 (TX0 + TX2 = an 8-element azimuth array), TX1 between
+them and raised by lambda/2 (4 elevation channels). xWR16xxBOOST: TX0 and TX1 2 lambda apart,
+no elevation. The index runs towards -x (x = -index), which is the geometry under which TI's
+mmw demo AoA (x = range * Wx with Wx = 2 k / N from the azimuth FFT peak k over the channels
+in index order; Wz = arg(Az * conj(El)) / pi + 2 Wx) is right for our phase model: our raw
+path then gives the same x and z signs as the chip's own UART point cloud
+(tests/dca1000/test_dsp.py::test_angles_match_ti_demo_formulas). `mirror_x` flips a layout
+for a board that turns out to be wired or mounted the other way (check once with a corner
+reflector).
 """
 
 from __future__ import annotations
@@ -49,14 +54,14 @@ class AntennaLayout:
 
 AWR2243BOOST = AntennaLayout(
     name="AWR2243BOOST",
-    tx=((0.0, 0.0), (2.0, 1.0), (4.0, 0.0)),
-    rx=((0.0, 0.0), (1.0, 0.0), (2.0, 0.0), (3.0, 0.0)),
+    tx=((0.0, 0.0), (-2.0, 1.0), (-4.0, 0.0)),
+    rx=((0.0, 0.0), (-1.0, 0.0), (-2.0, 0.0), (-3.0, 0.0)),
 )
 
 XWR16XXBOOST = AntennaLayout(
     name="xWR16xxBOOST",
-    tx=((0.0, 0.0), (4.0, 0.0)),
-    rx=((0.0, 0.0), (1.0, 0.0), (2.0, 0.0), (3.0, 0.0)),
+    tx=((0.0, 0.0), (-4.0, 0.0)),
+    rx=((0.0, 0.0), (-1.0, 0.0), (-2.0, 0.0), (-3.0, 0.0)),
 )
 """IWR/AWR1642BOOST: two TX 2 lambda apart -> 8-element azimuth array, no elevation."""
 
