@@ -176,11 +176,15 @@ class VehicleLoop:
         self.drops: collections.Counter = collections.Counter()
         self.readers: list[SensorReader] = []
         self.seq = 0
-        self.rates = {"radar": RateCounter(), "frames": RateCounter(), "fused": RateCounter()}
+        self.rates = {"radar": RateCounter(), "frames": RateCounter()}
+        if process and cfg.is_cav:
+            self.rates["shared"] = RateCounter()
+        if process and cfg.is_ego:
+            self.rates["fused"] = RateCounter()
         self.node: Node | None = None
         if process:
             assert pipeline is not None
-            publish = transport.put if transport is not None else None
+            publish = self._publish if transport is not None else None
             height = getattr(radar, "radar_height", cfg.radar.height_m)
             self.node = Node(cfg, pipeline, camera.camera, height, publish=publish, recorder=recorder,
                              wait_s=cfg.ego.wait_s)
@@ -195,6 +199,11 @@ class VehicleLoop:
     def _on_result(self, msg: dict) -> None:
         if msg["status"] == "fused":
             self.rates["fused"].add()
+
+    def _publish(self, key: str, data: bytes) -> None:
+        self.transport.put(key, data)
+        if "shared" in self.rates and key.endswith("/shared"):
+            self.rates["shared"].add()
 
     # ------------------------------------------------------------------ run
     def run(self) -> int:

@@ -42,8 +42,17 @@ def parse_overrides(items: list[str]) -> dict:
     return out
 
 
+def service_logging(args: argparse.Namespace) -> None:
+    """A service shows its effective config, status lines and summaries without -v
+    (the journal is its log); -v/-vv still go further."""
+    if getattr(args, "verbose", 0) == 0:
+        logging.getLogger("edge").setLevel(logging.INFO)
+
+
 def load_config(args: argparse.Namespace, extra: dict | None = None):
     from edge import config
+
+    service_logging(args)
 
     overrides = parse_overrides(args.set)
     if getattr(args, "log_dir", None):
