@@ -290,6 +290,9 @@ class VehicleLoop:
         except MMatchError as exc:  # a frame the pipeline cannot handle costs that frame only
             log.warning("frame %d dropped: %s", frame.seq, exc)
             self.drops["pipeline"] += 1
+        except Exception:  # a pipeline bug on odd input must not stop the vehicle service
+            log.exception("frame %d dropped: pipeline failed", frame.seq)
+            self.drops["pipeline_error"] += 1
 
     def health(self) -> dict:
         """Rates (per s since the last call), drops and counters."""

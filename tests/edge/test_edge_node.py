@@ -105,3 +105,30 @@ def test_cav_role_publishes_shared_frames():
     assert node.process(_frame(3, 2.0)) is None
     assert published[0][0] == keys.shared("ego1")
     assert FAKE.decode(published[0][1]).seq == 3
+
+
+def test_loop_survives_a_pipeline_failure_on_one_frame():
+    from dataclasses import replace
+
+    from edge.loop import VehicleLoop
+    from edge.sources.base import NoCamera
+    from mmatch.types import RadarFrame
+
+    calls = []
+
+    def flaky_view(points, *a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise ValueError("odd input")
+        return FAKE.process_view(points, *a, **k)
+
+    cfg = config.from_dict({"vehicle": {"id": "cav1", "role": "cav"}, "camera": {"source": "none"}})
+
+    class Radar(NoCamera):
+        raw_topic = "/raw/uart"
+        lossless = False
+
+    loop = VehicleLoop(cfg, Radar(), NoCamera(), replace(FAKE, process_view=flaky_view))
+    for k in range(3):
+        loop._step(RadarFrame(points=np.ones((3, 5), np.float32), stamp=float(k)))
+    assert len(calls) == 3 and loop.drops["pipeline_error"] == 1 and loop.node.counters.frames == 3
