@@ -60,5 +60,8 @@ def run(quick: bool = False) -> dict:
         out[f"reader_frames_per_s{key}"] = round(frames / dt, 0)
         out[f"points_per_frame_mean{key}"] = round(points / max(frames, 1), 1)
         out[f"stream_mb{key}"] = round(len(data) / 1e6, 2)
+        if fmt == "sdk3":  # serial-sized reads (4 KiB), as a live port or paced replay feeds it
+            dt4, _ = _throughput(data, repeats, chunk=4096)
+            out["reader_mb_per_s_4k_reads"] = round(len(data) / dt4 / 1e6, 1)
     out["uart_line_mb_per_s"] = round(921600 / 10 / 1e6, 3)
     return out
