@@ -261,7 +261,8 @@ def _decode_as(buf: bytes | bytearray, offset: int, end: int, final: bool, fmt: 
     elif pad >= SEGMENT or (major >= 2 and total % SEGMENT):
         return _reject("padding", f"{pad} bytes after the last TLV in a {total}-byte packet")
 
-    points, why = _points(hdr, major, tlvs, chirp)
+    with np.errstate(all="ignore"):  # corrupt units may overflow: caught as non-finite below
+        points, why = _points(hdr, major, tlvs, chirp)
     if why:
         return _reject("point_count", why)
     if not np.isfinite(points).all():
@@ -332,19 +333,19 @@ def doppler_from_index(doppler_idx: np.ndarray, chirp: ChirpParams | None) -> np
 
 def spherical_to_points(t: CompressedPoints) -> np.ndarray:
     """Compressed spherical points -> float32 (N, 5) mmatch points (see module doc)."""
-    el_u, az_u, dop_u, r_u, snr_u = (np.float32(u) for u in t.units)
-    p = t.points
-    el = p["elevation"] * el_u
-    az = p["azimuth"] * az_u
-    r = p["range"] * r_u
-    rc = r * np.cos(el)
-    out = np.empty((len(p), 5), np.float32)
-    out[:, 0] = rc * np.sin(az)
-    out[:, 1] = rc * np.cos(az)
-    out[:, 2] = r * np.sin(el)
-    out[:, 3] = p["doppler"] * dop_u
-    ratio = p["snr"] * snr_u
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(all="ignore"):  # ratio 0 -> floor; absurd units -> non-finite values
+        el_u, az_u, dop_u, r_u, snr_u = (np.float32(u) for u in t.units)
+        p = t.points
+        el = p["elevation"] * el_u
+        az = p["azimuth"] * az_u
+        r = p["range"] * r_u
+        rc = r * np.cos(el)
+        out = np.empty((len(p), 5), np.float32)
+        out[:, 0] = rc * np.sin(az)
+        out[:, 1] = rc * np.cos(az)
+        out[:, 2] = r * np.sin(el)
+        out[:, 3] = p["doppler"] * dop_u
+        ratio = p["snr"] * snr_u
         out[:, 4] = np.maximum(np.float32(10.0) * np.log10(ratio), np.float32(SNR_FLOOR_DB))
     return out
 

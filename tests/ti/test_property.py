@@ -4,6 +4,7 @@ every frame the mutations did not touch comes out exactly (ti_formats.md section
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
@@ -11,6 +12,8 @@ from drivers.ti.reader import read_all
 from drivers.ti.writer import encode_frame
 
 from .helpers import all_tlv_messages, make_points
+
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # corrupt data: no numpy noise
 
 FORMATS = ("sdk3", "sdk2", "sdk1", "xwr14xx", "toolbox", "pc3d")
 N_FRAMES = 24
