@@ -124,7 +124,10 @@ class Recorder:
         self.close()
 
     def _new_path(self) -> Path:
-        stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+        """<prefix>-<UTC yyyymmdd-hhmmss-mmm>-<n>.mcap: names sort in time order; n counts the
+        files of one run (0000 starts a run)."""
+        now = time.time()
+        stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(now)) + f"-{int(now * 1000) % 1000:03d}"
         n = len(self.files)
         while True:
             path = self.dir / f"{self.prefix}-{stamp}-{n:04d}.mcap"

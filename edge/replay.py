@@ -29,10 +29,14 @@ from mmatch.types import RadarFrame
 log = logging.getLogger(__name__)
 
 
+FIRST_FILE_SUFFIX = "-0000.mcap"  # the recorder's first file of a run
+
+
 @dataclass
 class Event:
     """kind: "frame" (own sensor frame), "rx" (shared frame from `vehicle`), "fused"
-    (a recorded fusion result), "raw" (raw sensor bytes)."""
+    (a recorded fusion result), "raw" (raw sensor bytes), "run" (a new run of the service
+    starts in this log folder: the live state was fresh)."""
 
     kind: str
     log_time_ns: int
@@ -65,7 +69,13 @@ def log_events(path: str | Path, report: logreader.LogReport | None = None,
                raw: bool = False) -> Iterator[Event]:
     """The events of a log in file order (= the live loop's order)."""
     pending: dict[int, np.ndarray] = {}
+    current = None
     for m in logreader.read_messages(path, report=report):
+        if m.file != current:
+            if current is not None and Path(m.file).name.endswith(FIRST_FILE_SUFFIX):
+                pending.clear()
+                yield Event("run", m.log_time_ns)  # a new process started (e.g. restarted by systemd)
+            current = m.file
         try:
             if m.topic == logschema.POINTS:
                 pts, stamp = logschema.points_from_json(json.loads(m.data))
@@ -139,10 +149,13 @@ def compare_fused(recorded: list[dict], replayed: list[dict], atol: float = 1e-6
     """Match fused results by seq and compare them without wall-clock fields."""
     from edge.node import comparable
 
-    rep = {m["seq"]: comparable(m) for m in replayed}
+    def key(m: dict) -> tuple[int, int]:  # seq restarts with each run; the stamp does not
+        return int(m["seq"]), logschema.stamp_key(float(m["stamp"]))
+
+    rep = {key(m): comparable(m) for m in replayed}
     same, differ, missing = 0, [], []
     for m in recorded:
-        r = rep.get(m["seq"])
+        r = rep.get(key(m))
         if r is None:
             missing.append(m["seq"])
         elif _close(comparable(m), r, atol):
@@ -229,11 +242,16 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
             recorder.set_metadata("camera", logschema.camera_to_meta(camera, height))
         transport = stack.enter_context(Transport(cfg.zenoh)) if publish else None
         node = None
+        pipeline = default_pipeline(need_fuse=cfg.is_ego) if process else None
+
+        def fresh_node() -> Node:
+            n = Node(cfg, pipeline, camera, height, publish=transport.put if transport else None,
+                     recorder=recorder)
+            n.on_result = fused.append
+            return n
+
         if process:
-            pipeline = default_pipeline(need_fuse=cfg.is_ego)
-            node = Node(cfg, pipeline, camera, height, publish=transport.put if transport else None,
-                        recorder=recorder)
-            node.on_result = fused.append
+            node = fresh_node()
         pacer = Pacer(fast, speed)
         if is_log:
             events: Iterator[Event] = log_events(path, report)
@@ -246,9 +264,15 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
                 frame_number=f.frame_number, host_time=f.host_time))
                 for i, f in enumerate(capture_frames(path, pace_baud=baud, stats_out=cap_stats)))
         n_frames = 0
+        runs = 1
         for ev in events:
             if ev.kind == "fused":
                 recorded.append(ev.msg)
+                continue
+            if ev.kind == "run":
+                runs += 1
+                if node is not None:
+                    node = fresh_node()
                 continue
             if is_log:
                 pacer.wait(ev.log_time_ns)
@@ -268,7 +292,7 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
                     node.on_shared(ev.vehicle, ev.data)
                 except DecodeError:
                     rx_bad += 1
-    summary.update(frames=n_frames, fused_results=len(fused), rx_rejected=rx_bad,
+    summary.update(runs=runs, frames=n_frames, fused_results=len(fused), rx_rejected=rx_bad,
                    seconds=round(time.perf_counter() - t0, 3),
                    truncated=report.truncated, files=report.files)
     if not is_log:

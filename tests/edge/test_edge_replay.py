@@ -25,12 +25,15 @@ def test_pacer_keeps_recorded_time_and_speed():
 
 
 def test_compare_fused_ignores_wall_clock_fields_only():
-    a = [{"seq": 1, "status": "fused", "objects": [[1.0, 2.0, 0, 0]], "latency_ms": 3.0, "timings_ms": {"x": 1}}]
-    b = [{"seq": 1, "status": "fused", "objects": [[1.0, 2.0, 0, 0]], "latency_ms": 9.0, "timings_ms": {"x": 5}}]
+    a = [{"seq": 1, "stamp": 5.0, "status": "fused", "objects": [[1.0, 2.0, 0, 0]], "latency_ms": 3.0, "timings_ms": {"x": 1}}]
+    b = [{"seq": 1, "stamp": 5.0, "status": "fused", "objects": [[1.0, 2.0, 0, 0]], "latency_ms": 9.0, "timings_ms": {"x": 5}}]
     assert compare_fused(a, b)["same"] == 1
     b[0]["objects"][0][0] = 1.01
     assert compare_fused(a, b)["differ"] == [1]
     assert compare_fused(a, [])["missing"] == [1]
+    b[0]["objects"][0][0] = 1.0
+    b[0]["stamp"] = 6.0  # same seq from another run of the service is another result
+    assert compare_fused(a, b)["missing"] == [1]
 
 
 def test_a_log_is_a_source_for_mmatch_run(tmp_path):
@@ -60,3 +63,16 @@ def test_a_log_is_a_source_for_mmatch_run(tmp_path):
     assert len(tx) == len(recorded)
     summary = json.loads(mmatch(["replay", str(tmp_path / "run"), "--fast"]).stdout)
     assert summary["frames"] == len(recorded)
+
+
+def test_a_folder_with_two_runs_replays_each_from_a_fresh_state(tmp_path):
+    cfg = write_vehicle_cfg(tmp_path / "cav.toml", vid="cav1", role="cav", listen=[], connect=[],
+                            log_dir=tmp_path / "logs")
+    for _ in range(2):  # the service restarted: a second run logs into the same folder
+        res = mmatch(["run", "-c", str(cfg), "--duration", "1.5"])
+        assert res.returncode == 0, res.stderr[-2000:]
+    files = sorted(p.name for p in (tmp_path / "logs").glob("*.mcap"))
+    assert len(files) == 2 and all(f.endswith("-0000.mcap") for f in files)
+    tx = sum(1 for m in logreader.read_messages(tmp_path / "logs") if m.topic == "/shared/tx")
+    summary = json.loads(mmatch(["replay", str(tmp_path / "logs"), "--fast"]).stdout)
+    assert summary["runs"] == 2 and summary["frames"] == tx >= 20
