@@ -1,15 +1,17 @@
 """Pure TI UART frame decoder: bytes at an offset -> one frame, a rejection, or "need more".
 
 `decode_frame` applies the acceptance rule of ti_formats.md section 0, in this order:
-magic word at `offset`; header complete; sane totalPacketLen; the packet fits in the data
-(otherwise: wait for more bytes, unless the stream is final or a later magic word inside the
-declared packet proves it truncated); no other magic word inside [offset+8, offset+len);
-for the 48-byte format the header checksum; all numTLVs TLV headers and payloads inside the
-packet; each point TLV well-formed (other known TLVs of an unexpected size are kept raw and
-listed in `TiPacket.malformed_tlvs`, costing only themselves); padding after the last TLV < 32 bytes with the
-packet a multiple of 32 bytes (36/40-byte formats, SDK >= 2) or none (48-byte format);
-for SDK >= 3 TLV 1 holds numDetectedObj points (or length 0 when numDetectedObj is 0, the
-SDK 3.3 quirk) and TLV 7, when present, one entry per point.
+magic word at `offset`; no other magic word starting inside the header; header complete;
+sane totalPacketLen; the packet fits in the data (otherwise: wait for more bytes, unless the
+stream is final or a later magic word inside the declared packet proves it cut short); no
+other magic word starting inside [offset+8, offset+len) (one may run past the end); for the
+48-byte format the header checksum; all numTLVs TLV headers and payloads inside the packet;
+each point TLV well-formed (other known TLVs of an unexpected size are kept raw and listed
+in `TiPacket.malformed_tlvs`, costing only themselves); padding after the last TLV < 32
+bytes with the packet a multiple of 32 bytes (36/40-byte formats, SDK >= 2) or none
+(48-byte format); for SDK >= 3 TLV 1 holds numDetectedObj points (or length 0 when
+numDetectedObj is 0, the SDK 3.3 quirk); TLV 7, when present, one entry per point; finite
+point values. Verdicts and their reasons do not depend on how the bytes were chunked.
 
 It never raises on bad bytes: every failure is a `DecodeResult` with a reason from
 `REASONS`.
