@@ -64,6 +64,8 @@ class DataReceiver:
             )
         self.address = self._sock.getsockname()
         self.short_datagrams = 0
+        self._last_log = time.monotonic()
+        self._last_bytes = 0
 
     def __enter__(self) -> "DataReceiver":
         return self
@@ -79,6 +81,29 @@ class DataReceiver:
     @property
     def stats(self):
         return self.assembler.stats
+
+    def _summary(self, every_s: float = 5.0) -> None:
+        """INFO line with rate and losses every `every_s` seconds."""
+        now = time.monotonic()
+        if now - self._last_log < every_s:
+            return
+        st = self.assembler.stats
+        dt = now - self._last_log
+        rate = (st.payload_bytes - self._last_bytes) / dt / 1e6
+        log.info(
+            "DCA1000 data: %.1f MB/s, frames %d complete / %d flagged / %d dropped / %d lost, "
+            "gaps %d, out of order %d, bad %d",
+            rate,
+            st.frames_complete,
+            st.frames_flagged,
+            st.frames_dropped,
+            st.frames_lost,
+            st.gaps,
+            st.out_of_order,
+            st.bad_packets,
+        )
+        self._last_log = now
+        self._last_bytes = st.payload_bytes
 
     def frames(
         self,
@@ -104,7 +129,11 @@ class DataReceiver:
         mv = memoryview(buf)
         emitted = 0
         stop_at = None if deadline_s is None else time.monotonic() + deadline_s
+        count = 0
         while True:
+            count += 1
+            if count & 4095 == 0:
+                self._summary()
             try:
                 n = recv_into(buf)
             except (BlockingIOError, InterruptedError):
@@ -147,6 +176,7 @@ class DataReceiver:
         while True:
             if stop_at is not None and time.monotonic() >= stop_at:
                 break
+            self._summary()
             n = br.recv()
             if n == 0:
                 wait = idle_timeout_s
