@@ -167,3 +167,36 @@ def test_replaying_the_clean_ego_log_reproduces_the_live_results(live):
     replayed = [json.loads(x) for x in out.read_text().splitlines()]
     assert sum(bool(m["cavs"]) for m in replayed) >= 100
     assert sum(m["single_vehicle"] for m in replayed) >= 20  # the gap is in the log too
+
+
+def test_ego_fuses_several_cavs_at_once(tmp_path):
+    from edge import logreader
+
+    ego_ep = f"tcp/127.0.0.1:{free_port()}"
+    ego_cfg = write_vehicle_cfg(tmp_path / "ego.toml", vid="ego1", role="ego", listen=[ego_ep], connect=[],
+                                log_dir=tmp_path / "log-ego", phase=0.02, cavs=[])
+    cavs = [write_vehicle_cfg(tmp_path / f"{c}.toml", vid=c, role="cav", listen=[], connect=[ego_ep],
+                              log_dir=None, phase=ph)
+            for c, ph in (("cav1", 0.0), ("cav2", 0.01))]
+    procs = [start(["run", "-c", str(ego_cfg)], tmp_path / "ego.out")]
+    try:
+        procs += [start(["run", "-c", str(c)], tmp_path / f"{c.stem}.out") for c in cavs]
+
+        def both_seen() -> bool:
+            return "link to cav1 up" in (tmp_path / "ego.out").read_text() and \
+                "link to cav2 up" in (tmp_path / "ego.out").read_text()
+
+        assert wait_for(both_seen, 40), (tmp_path / "ego.out").read_text()[-2000:]
+        time.sleep(3.0)
+        for p in procs[1:]:
+            assert stop(p) == 0
+        assert stop(procs[0]) == 0
+    finally:
+        for p in procs:
+            stop(p, signal.SIGKILL)
+    msgs = [json.loads(m.data) for m in logreader.read_messages(tmp_path / "log-ego", topics=["/fused"])]
+    with_both = [m for m in msgs if {c["id"] for c in m["cavs"]} == {"cav1", "cav2"}]
+    assert len(with_both) >= 0.8 * 3.0 * RATE
+    m = with_both[-1]
+    assert set(m["links"]) == {"cav1", "cav2"}
+    assert all(abs(c["dt"]) <= 0.06 for c in m["cavs"])
