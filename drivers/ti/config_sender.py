@@ -83,6 +83,10 @@ def send_cfg(port: Any, cfg: RadarCfg | str | Path, *, timeout_s: float = 2.0, s
         line = " ".join((cmd, *args))
         limit = start_timeout_s if cmd == "sensorStart" else timeout_s
         answer = _send_line(port, line, limit, prompt, prompt_grace_s, f"{cfg.path}:{lineno}")
+        if cmd == "baudRate" and hasattr(port, "baudrate"):
+            # xWRL6432 (single UART): the device answers at the old rate, then switches
+            port.baudrate = int(float(args[0]))
+            log.info("%s:%d: port now at %d baud", cfg.path, lineno, port.baudrate)
         reply = CommandReply(lineno, line, answer)
         log.debug("%s:%d %s -> %r", cfg.path, lineno, line, answer)
         if on_reply is not None:

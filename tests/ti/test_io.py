@@ -273,3 +273,12 @@ def test_parse_cfg_from_sender_lines_roundtrip():
     cfg = load_cfg(VEHICLE_CFG)
     again = parse_cfg("\n".join(cfg.lines()))
     assert again.chirp == cfg.chirp
+
+
+def test_send_cfg_follows_baud_rate_command(radar):
+    _, path = radar()
+    cfg = parse_cfg(VEHICLE_CFG.read_text().replace("sensorStart", "baudRate 1250000\nsensorStart"))
+    with serial.Serial(path, 115200, timeout=0.05) as ser:
+        replies = send_cfg(ser, cfg, timeout_s=2.0)
+        assert ser.baudrate == 1250000
+    assert [r.line for r in replies][-2:] == ["baudRate 1250000", "sensorStart"]
