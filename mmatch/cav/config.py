@@ -55,10 +55,15 @@ class SeparationConfig:
         for the points projecting into the box (moving or not).
     moving_depth_rel: the same for moving points in the box's bearing wedge; wider, since
         a moving point in the wedge is strong evidence and depth errors reach 2 sigma (30 %).
-    box_margin_px: the box grows by this many pixels on every side before the tests.
-    bearing_margin_deg: the wedge and box also grow sideways by this angle (radar azimuth
-        noise, 0.3-2.5 deg); a box touching the image's left or right edge opens its wedge
-        to that side (the vehicle continues outside the image).
+    box_margin_px: the box grows by this many pixels on every side before the tests
+        (0: the in-box test uses the box as detected; wider margins let guardrail and
+        facade returns beside a parked car in).
+    bearing_margin_deg: the wedge for moving points also grows sideways by this angle
+        (radar azimuth noise, 0.3-2.5 deg).
+    elevation_margin_deg: the in-box test grows vertically by this angle (radar elevation
+        noise is 1.5-3.5 deg: a vehicle's returns often project above or below its box).
+    edge_px: a box within this many pixels of the image's left or right edge is cut by
+        it: its box and wedge open to that side (the vehicle continues outside the image).
     min_box_score: boxes scoring below this are ignored (not vehicles).
     moving_ratio: a box is a moving vehicle when it claims at least one moving point and at
         least `moving_ratio` times as many moving as stationary points; otherwise it is
@@ -75,6 +80,7 @@ class SeparationConfig:
     box_margin_px: float = 0.0
     bearing_margin_deg: float = 0.5
     elevation_margin_deg: float = 4.0
+    edge_px: float = 0.0
     min_box_score: float = 0.0
     min_camera_z_m: float = 0.5
     parked_keep_points: bool = True
@@ -179,6 +185,7 @@ def _check(cfg: CavConfig) -> None:
                     ("separation.moving_depth_rel", cfg.separation.moving_depth_rel),
                     ("separation.bearing_margin_deg", cfg.separation.bearing_margin_deg),
                     ("separation.elevation_margin_deg", cfg.separation.elevation_margin_deg),
+                    ("separation.edge_px", cfg.separation.edge_px),
                     ("separation.moving_ratio", cfg.separation.moving_ratio),
                     ("clustering.velocity_scale_s", cfg.clustering.velocity_scale_s)]
     for key, value in positive:

@@ -106,13 +106,16 @@ def separate(points: np.ndarray, moving: np.ndarray, boxes: np.ndarray, camera: 
     active = b[:, 4] >= cfg.min_box_score
     mg = cfg.box_margin_px
     mu = mg + float(camera.K[0, 0]) * np.tan(np.radians(cfg.bearing_margin_deg))
-    lo = np.where(b[:, 0] <= mg, -np.inf, b[:, 0] - mu)              # clipped at the image edge:
-    hi = np.where(b[:, 2] >= camera.image_size[0] - 1 - mg, np.inf, b[:, 2] + mu)   # open wedge
+    # a box within edge_px of the image's left or right edge is cut by it: open that side
+    left = b[:, 0] <= cfg.edge_px
+    right = b[:, 2] >= camera.image_size[0] - 1 - cfg.edge_px
+    lo, hi = np.where(left, -np.inf, b[:, 0] - mu), np.where(right, np.inf, b[:, 2] + mu)
+    lo_box, hi_box = np.where(left, -np.inf, b[:, 0] - mg), np.where(right, np.inf, b[:, 2] + mg)
+    mv = mg + float(camera.K[1, 1]) * np.tan(np.radians(min(cfg.elevation_margin_deg, 89.0)))
     u, v = pr.uv[:, 0:1], pr.uv[:, 1:2]
     with np.errstate(invalid="ignore"):
         wedge = pr.front[:, None] & (u >= lo[None, :]) & (u <= hi[None, :])
-        mv = mg + float(camera.K[1, 1]) * np.tan(np.radians(min(cfg.elevation_margin_deg, 89.0)))
-        in_box = pr.front[:, None] & (u >= b[None, :, 0] - mg) & (u <= b[None, :, 2] + mg) \
+        in_box = pr.front[:, None] & (u >= lo_box[None, :]) & (u <= hi_box[None, :]) \
             & (v >= b[None, :, 1] - mv) & (v <= b[None, :, 3] + mv)
     gap = np.abs(pr.bev_range[:, None] - b[None, :, 5])                 # (N, M)
     near = gap <= cfg.delta_d_m + cfg.depth_rel * b[None, :, 5]
