@@ -225,3 +225,15 @@ def test_fuzz_bytes_behind_a_valid_header_only_raise_decode_error(tail):
     except DecodeError:
         return
     assert isinstance(frame, SharedFrame)   # a well-formed accident is fine; never another error
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), V=st.integers(0, 12), K=st.integers(0, 60), B=st.integers(0, 120),
+       sender=st.text(max_size=20))
+def test_round_trip_property(seed, V, K, B, sender):
+    if V == 0:
+        K = 0
+    if len(sender.encode("utf-8")) > 64:
+        sender = sender[:8]
+    a = make_frame(seed, V=V, K=K, B=B, sender=sender)
+    assert_round_trip(a, decode(encode(a)))
