@@ -299,6 +299,22 @@ def load(path: str | Path, overrides: dict | None = None) -> VehicleConfig:
     return from_dict(data, source=str(path))
 
 
+def parse_overrides(items: list[str]) -> dict:
+    """["a.b=1", "c.d=x"] -> {"a": {"b": 1}, "c": {"d": "x"}} (TOML values, else strings)."""
+    out: dict = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        parts = key.strip().split(".")
+        if not sep or len(parts) != 2 or not all(parts):
+            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE")
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw
+        out.setdefault(parts[0], {})[parts[1]] = value
+    return out
+
+
 def merge(base: dict, top: dict) -> dict:
     """Nested dict merge (top wins), new dicts, inputs untouched."""
     out = dict(base)

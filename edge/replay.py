@@ -183,9 +183,8 @@ def _replay_config(log_path: str | Path, is_log: bool, config_path: str | None, 
     import tomllib
 
     from edge import config as cfgmod
-    from edge.commands.run import parse_overrides
 
-    overrides = parse_overrides(sets)
+    overrides = cfgmod.parse_overrides(sets)
     if config_path:
         data = tomllib.loads(Path(config_path).read_text())
     else:

@@ -23,23 +23,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def parse_overrides(items: list[str]) -> dict:
-    """["a.b=1", "c.d=x"] -> {"a": {"b": 1}, "c": {"d": "x"}} (TOML values, else strings)."""
-    import tomllib
+    """--set items as a nested dict (see edge.config.parse_overrides)."""
+    from edge.config import parse_overrides as parse
 
-    from mmatch.errors import ConfigError
-
-    out: dict = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        parts = key.strip().split(".")
-        if not sep or len(parts) != 2 or not all(parts):
-            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE")
-        try:
-            value = tomllib.loads(f"v = {raw}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw
-        out.setdefault(parts[0], {})[parts[1]] = value
-    return out
+    return parse(items)
 
 
 def service_logging(args: argparse.Namespace) -> None:

@@ -85,3 +85,12 @@ def test_effective_config_is_logged(caplog):
     with caplog.at_level("INFO", logger="edge.config"):
         config.log_effective(cfg)
     assert any("id='ego7'" in r.getMessage() for r in caplog.records)
+
+
+def test_set_overrides_parse_toml_values():
+    assert config.parse_overrides(["sim.rate_hz=10", "radar.port=/dev/ttyUSB1", 'vehicle.id="a"',
+                                   "zenoh.listen=[\"tcp/127.0.0.1:1\"]"]) == {
+        "sim": {"rate_hz": 10}, "radar": {"port": "/dev/ttyUSB1"}, "vehicle": {"id": "a"},
+        "zenoh": {"listen": ["tcp/127.0.0.1:1"]}}
+    with pytest.raises(ConfigError, match="SECTION.KEY=VALUE"):
+        config.parse_overrides(["rate=1"])
