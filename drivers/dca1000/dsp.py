@@ -43,6 +43,9 @@ class DspConfig:
     range_bias_m, channel_phase: calibration of compRangeBiasAndRxChanPhase (channel_phase:
         complex factor per virtual channel in cube order, multiplied in).
     tdm_compensation: remove the Doppler phase of later TX slots (off only to show why it matters).
+    multi_obj_threshold: when set (cfg multiObjBeamForming), a second azimuth peak outside the
+        main lobe whose magnitude is at least this fraction of the first gives a second point in
+        the same range-Doppler cell (two cars side by side at the same range and speed).
     """
 
     window: str = "hann"
@@ -61,6 +64,7 @@ class DspConfig:
     range_bias_m: float = 0.0
     channel_phase: tuple[complex, ...] | None = None
     tdm_compensation: bool = True
+    multi_obj_threshold: float | None = None
 
     def __post_init__(self) -> None:
         if self.cfar not in ("ca", "os"):
@@ -91,6 +95,9 @@ class DspConfig:
                     if direction == 0:
                         kw["threshold_db"] = thr
                     kw["peak_grouping"] = bool(a[7])
+            elif cmd == "multiObjBeamForming" and len(a) in (2, 3):
+                enabled, thr = a[-2], a[-1]
+                kw["multi_obj_threshold"] = thr if enabled else None
             elif cmd == "clutterRemoval":
                 kw["clutter_removal"] = bool(a[-1])
             elif cmd == "cfarFovCfg" and len(a) == 4 and int(a[1]) == 0:
@@ -266,7 +273,11 @@ class RadarDsp:
             keep = np.argsort(p / nz)[::-1][: cfg.max_points]
             keep.sort()
             d, r, p, nz = d[keep], r[keep], p[keep], nz[keep]
-        points = self._points(spec, power, d, r, p, nz) if len(d) else empty_points()
+        if len(d):
+            points, src = self._points(spec, power, d, r, p, nz)
+            d, r = d[src], r[src]
+        else:
+            points = empty_points()
         return DspResult(
             points,
             np.stack([d, r], axis=1),
@@ -296,7 +307,9 @@ class RadarDsp:
         ok = power[d, r] > self.thr * nz
         return d[ok], r[ok], nz[ok]
 
-    def _points(self, spec, power, d, r, p, nz) -> np.ndarray:
+    def _points(self, spec, power, d, r, p, nz) -> tuple[np.ndarray, np.ndarray]:
+        """Points of the detected cells, and the detection each point comes from (a cell gives
+        a second point when multi-object beamforming finds a second azimuth peak)."""
         cfg = self.config
         ds = self.d_signed[d]
         y = spec[d, :, r]  # (K, V)
@@ -310,15 +323,24 @@ class RadarDsp:
         a = y[:, self.az_idx] @ self.az_map  # (K, n_az)
         s = np.abs(sfft.fft(a, n=self.n_fft_az, axis=1, workers=1))
         k = np.argmax(s, axis=1)
-        idx = np.arange(len(k))
-        lm = np.log(s[idx, (k - 1) % self.n_fft_az] + 1e-12)
-        l0 = np.log(s[idx, k] + 1e-12)
-        lp = np.log(s[idx, (k + 1) % self.n_fft_az] + 1e-12)
-        den = lm - 2 * l0 + lp
-        delta = np.where(den < 0, 0.5 * (lm - lp) / np.where(den < 0, den, -1), 0.0)
-        f = (k + delta) / self.n_fft_az
-        f = np.where(f >= 0.5, f - 1.0, f)
-        ux = np.clip(-2.0 * f, -1.0, 1.0)  # phase -pi x u_x
+        ux = self._peak_ux(s, k)
+        src = np.arange(len(d))
+        gain = np.ones(len(d))
+        if cfg.multi_obj_threshold is not None:
+            n = self.n_fft_az
+            peaks = (s > np.roll(s, 1, axis=1)) & (s >= np.roll(s, -1, axis=1))
+            dist = (np.arange(n)[None, :] - k[:, None]) % n
+            dist = np.minimum(dist, n - dist)
+            outside = dist >= int(math.ceil(n / self.n_az))  # beyond the main lobe's first null
+            cand = np.where(peaks & outside, s, 0.0)
+            k2 = np.argmax(cand, axis=1)
+            ratio = cand[src, k2] / np.maximum(s[src, k], 1e-30)
+            two = np.flatnonzero(ratio >= cfg.multi_obj_threshold)
+            if len(two):
+                ux = np.concatenate([ux, self._peak_ux(s[two], k2[two])])
+                y = np.concatenate([y, y[two]])
+                src = np.concatenate([src, two])
+                gain = np.concatenate([gain, ratio[two] ** 2])
         uz = np.zeros_like(ux)
         if cfg.elevation and len(self.el_idx):
             steer = np.exp(1j * np.pi * np.outer(ux, self.pos[:, 0])).astype(np.complex64)
@@ -333,13 +355,28 @@ class RadarDsp:
         # sub-bin range and Doppler from a parabola through the log power
         rng = (r + self._parabola(power, d, r, axis=1)) * self.range_step - cfg.range_bias_m
         dop = (ds + self._parabola(power, d, r, axis=0)) * self.doppler_step
-        out = np.empty((len(d), 5), dtype=np.float32)
+        rng, dop = rng[src], dop[src]
+        snr = 10 * np.log10(np.maximum(p[src] * gain, 1e-30) / np.maximum(nz[src], 1e-30))
+        out = np.empty((len(src), 5), dtype=np.float32)
         out[:, 0] = rng * ux
         out[:, 1] = rng * uy
         out[:, 2] = rng * uz
         out[:, 3] = dop
-        out[:, 4] = 10 * np.log10(np.maximum(p, 1e-30) / np.maximum(nz, 1e-30))
-        return out
+        out[:, 4] = snr
+        return out, src
+
+    def _peak_ux(self, s: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """u_x = sin(az) cos(el) of azimuth-spectrum peaks k (parabola on log magnitude)."""
+        n = self.n_fft_az
+        idx = np.arange(len(k))
+        lm = np.log(s[idx, (k - 1) % n] + 1e-12)
+        l0 = np.log(s[idx, k] + 1e-12)
+        lp = np.log(s[idx, (k + 1) % n] + 1e-12)
+        den = lm - 2 * l0 + lp
+        delta = np.where(den < 0, 0.5 * (lm - lp) / np.where(den < 0, den, -1), 0.0)
+        f = (k + delta) / n
+        f = np.where(f >= 0.5, f - 1.0, f)
+        return np.clip(-2.0 * f, -1.0, 1.0)  # phase -pi x u_x along the array
 
     @staticmethod
     def _parabola(power, d, r, axis: int) -> np.ndarray:

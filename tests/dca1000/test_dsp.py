@@ -298,3 +298,29 @@ def test_angles_match_ti_demo_formulas(dsp_setup):
         assert abs(x / rng - wx) <= 2 / n, (t, x / rng, wx)
         assert abs(z / rng - wz) <= 3 * 2 / n, (t, z / rng, wz)
         assert np.sign(x) == np.sign(wx) and np.sign(z) == np.sign(wz)
+
+
+def test_multi_object_beamforming_splits_a_cell_by_azimuth(radar_cfg):
+    """Two cars side by side at the same range and speed share one range-Doppler cell."""
+    c = radar_cfg.chirp
+    pair = [Target(30.0, 5.0, -25.0), Target(30.0, 5.0, 20.0)]
+    geom, single = make_dsp(radar_cfg)
+    _, multi = make_dsp(radar_cfg, multi_obj_threshold=0.5)
+    cube = synth_cube(c, geom, pair)
+    assert len(single.process(cube).points) == 1
+    res = multi.process(cube)
+    assert len(res.points) == 2 and (res.cells[0] == res.cells[1]).all()
+    az = np.sort(np.degrees(np.arctan2(res.points[:, 0], res.points[:, 1])))
+    assert abs(az[0] + 25.0) <= 2.0 and abs(az[1] - 20.0) <= 2.0
+    lone = multi.process(synth_cube(c, geom, [Target(30.0, 5.0, 35.0)])).points
+    assert len(lone) == 1  # sidelobes of one target never make a second point
+
+
+def test_multi_object_setting_from_cfg(radar_cfg):
+    text = (
+        open(radar_cfg.path)
+        .read()
+        .replace("sensorStart", "multiObjBeamForming -1 1 0.5\nsensorStart")
+    )
+    assert DspConfig.from_cfg(parse_cfg(text, "<mobf>")).multi_obj_threshold == 0.5
+    assert DspConfig.from_cfg(radar_cfg).multi_obj_threshold is None
