@@ -89,11 +89,15 @@ def separate(points: np.ndarray, moving: np.ndarray, boxes: np.ndarray, camera: 
              config: SeparationConfig | None = None, proj: Projection | None = None) -> Separation:
     """Assign points (N, >=3, radar frame) to boxes (M, 6) u1, v1, u2, v2, score, depth.
 
-    moving: bool (N,) from the ego-motion fit. A box claims a point when the point projects
-    into the (margin-grown) box and its BEV range is within the depth window, or when it
-    moves, lies in the box's bearing wedge (u1 <= u <= u2, grown) and within the wider
-    moving depth window. One point, one box: the box
-    whose depth is nearest the point's range wins. Vectorised over the (N, M) pairs.
+    moving: bool (N,) from the ego-motion fit. A box claims a point when
+    - the point projects into the box (grown by box_margin_px, and vertically by
+      elevation_margin_deg for the radar's poor elevation) and its BEV range is within
+      depth +- (delta_d + depth_rel * depth), or
+    - the point moves, lies in the box's bearing wedge (u1 <= u <= u2, grown by
+      bearing_margin_deg) and within depth +- (delta_d + moving_depth_rel * depth).
+    A box touching the image's left or right edge (edge_px) is open to that side. One
+    point, one box: the box whose depth is nearest the point's range wins. Vectorised
+    over the (N, M) point-box pairs.
     """
     cfg = config or SeparationConfig()
     n, m = len(points), len(boxes)
