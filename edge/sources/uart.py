@@ -33,6 +33,11 @@ class UartRadar(RadarSource):
         self._pending: deque[RadarFrame] = deque()
         self._stats_total: dict[str, int] = {"opens": 0, "bytes": 0}
         self._frames = 0
+        self.radar_cfg = None
+        if cfg.radar.cfg:  # a bad profile fails at start, naming the line, before anything is sent
+            from drivers.ti.cfg import load_cfg
+
+            self.radar_cfg = load_cfg(cfg.radar.cfg)
 
     def open(self) -> None:
         import serial
@@ -46,29 +51,18 @@ class UartRadar(RadarSource):
                                               timeout=0.05, exclusive=None)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceError(f"radar uart {self.port}: cannot open: {exc}") from exc
-        chirp = None
-        if self.cfg.radar.cfg:
-            try:
-                from drivers.ti.cfg import load_cfg
-
-                chirp = load_cfg(self.cfg.radar.cfg).chirp
-            except Exception as exc:
-                log.warning("radar cfg %s not used for Doppler scaling: %s", self.cfg.radar.cfg, exc)
+        chirp = self.radar_cfg.chirp if self.radar_cfg is not None else None
         self._reader = TlvReader(on_error="log", chirp=chirp)
         self._stats_total["opens"] += 1
         log.info("radar uart open: %s at %d baud", self.port, self.cfg.radar.baudrate)
 
     def _configure(self) -> None:
-        try:
-            from drivers.ti import cli  # the TI driver's config sender
-        except ImportError:
-            log.warning("radar: drivers.ti.cli not available; not sending %s", self.cfg.radar.cfg)
-            return
-        send = getattr(cli, "send_cfg", None) or getattr(cli, "configure", None)
-        if send is None:
-            log.warning("radar: no config sender in drivers.ti.cli; not sending %s", self.cfg.radar.cfg)
-            return
-        send(self.cfg.radar.cli_port, self.cfg.radar.cfg)
+        """Send the chirp profile over the CLI port (again after every reopen: a replugged
+        radar has rebooted unconfigured)."""
+        from drivers.ti.config_sender import send_cfg
+
+        send_cfg(self.cfg.radar.cli_port, self.radar_cfg)
+        log.info("radar configured over %s with %s", self.cfg.radar.cli_port, self.cfg.radar.cfg)
 
     def read(self, timeout: float) -> RadarFrame | None:
         if self._ser is None:

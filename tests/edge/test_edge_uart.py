@@ -185,3 +185,23 @@ def test_garbage_is_counted_not_raised(tmp_path):
     port.unplug()
     assert got is not None and got.frame_number == 9
     assert c["bytes_skipped"] >= 5000 and c["frames"] == 1
+
+
+@pytest.mark.slow
+def test_run_configures_a_simulated_evm_and_streams_its_frames(tmp_path):
+    from drivers.ti.simulator import SimulatedRadar, default_points
+
+    profile = Path(__file__).resolve().parents[2] / "cfg" / "radar" / "xwr18xx_vehicle_100m.cfg"
+    with SimulatedRadar(fmt="sdk3") as evm:
+        cfg = _uart_cfg(tmp_path / "evm.toml", evm.data_port, tmp_path / "logs")
+        text = cfg.read_text().replace('reconnect_s = 0.1', f'reconnect_s = 0.1\ncli_port = "{evm.cli_port}"\n'
+                                                           f'cfg = "{profile}"')
+        cfg.write_text(text)
+        res = mmatch(["run", "-c", str(cfg), "--duration", "4"], timeout=60)
+        assert res.returncode == 0, res.stderr[-3000:]
+        assert any(line.startswith("sensorStart") for line in evm.received)
+    frames = [e.frame for e in log_events(tmp_path / "logs") if e.kind == "frame"]
+    assert len(frames) >= 10
+    fns = [f.frame_number for f in frames]
+    assert fns == sorted(fns)
+    np.testing.assert_allclose(frames[-1].points[:, :4], default_points(fns[-1])[:, :4], atol=1e-5)
