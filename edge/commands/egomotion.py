@@ -24,6 +24,7 @@ def _fmt(x) -> str:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
+    from edge.commands.progress import Progress
     from mmatch.cav.config import CavConfig
     from mmatch.cav.radar_eval import evaluate_radar_files
 
@@ -36,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = replace(cfg, threshold_mps=args.threshold)
         CavConfig(egomotion=cfg)                       # validates (ConfigError names the key)
     paths = sorted(folder.glob("*.npz"))
-    result = evaluate_radar_files(paths, cfg)
+    result = evaluate_radar_files(paths, cfg, progress=Progress("egomotion"))
     for exc in result.rejected:
         print(f"rejected: {exc}", file=sys.stderr)
     for name, reason in result.no_estimate:

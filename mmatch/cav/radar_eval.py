@@ -12,6 +12,7 @@ Figures without ground truth are null; a frame without an estimate has velocity 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,13 +42,19 @@ def _stat(values: list[float]) -> dict:
     return {"median": float(np.median(a)), "p90": float(np.percentile(a, 90))}
 
 
-def evaluate_radar_files(paths: list[Path], config: EgoMotionConfig | None = None) -> RadarEvaluation:
-    """Fit every file; rejected files are collected (with file and key), never fatal."""
+def evaluate_radar_files(paths: list[Path], config: EgoMotionConfig | None = None,
+                         progress: Callable[[int, int], None] | None = None) -> RadarEvaluation:
+    """Fit every file; rejected files are collected (with file and key), never fatal.
+
+    progress: called with (files done, total) after each file.
+    """
     cfg = config or EgoMotionConfig()
     per_frame, errors, rejected, no_estimate = [], [], [], []
     tp = fp = fn = 0
     has_moving_gt = False
-    for path in paths:
+    for k, path in enumerate(paths):
+        if progress:
+            progress(k, len(paths))
         try:
             rec = load_radar_frame(path)
         except SceneFormatError as exc:
@@ -70,6 +77,8 @@ def evaluate_radar_files(paths: list[Path], config: EgoMotionConfig | None = Non
             fn += int(np.sum(~e.moving & gt))
         per_frame.append({"file": Path(path).name, "velocity": velocity,
                           "moving": np.flatnonzero(e.moving).tolist()})
+    if progress:
+        progress(len(paths), len(paths))
     report = {
         "frames": len(per_frame),
         "rejected": len(rejected),
