@@ -4,7 +4,8 @@ The bytes are handed to `raw_sink` (the field log) as they arrive, then to
 `drivers.ti.reader.TlvReader`, which resynchronises on junk and counts rejects. A port
 that disappears (USB unplug) raises `DeviceError`; the loop reopens it, and the reader
 state starts fresh (a frame cut by the unplug is dropped and counted).
-Optionally the chirp profile is sent over the CLI port at open.
+Optionally the chirp profile is sent over the CLI port at open. A frame's stamp is its
+receive time (host clock, synchronised by GNSS/PTP) minus its time on the wire.
 """
 
 from __future__ import annotations
@@ -83,7 +84,10 @@ class UartRadar(RadarSource):
                     self.raw_sink(data)
                 now = time.time()
                 for pkt in self._reader.feed(data):
-                    self._pending.append(pkt.radar_frame(now))
+                    # capture stamp: receive time minus the packet's time on the wire (8N1)
+                    frame = pkt.radar_frame(now)
+                    frame.stamp = now - pkt.length * 10.0 / self.cfg.radar.baudrate
+                    self._pending.append(frame)
             elif time.monotonic() >= deadline:
                 return None
         self._frames += 1
