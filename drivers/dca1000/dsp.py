@@ -394,12 +394,40 @@ class RadarDsp:
         )
 
 
+def check_adc_format(cfg) -> None:
+    """Refuse cfgs whose ADC output this raw path does not decode: adcCfg must say 16 bits
+    (numADCBits 2) and complex samples (adcOutputFmt 1 = complex 1x or 2 = complex 2x)."""
+    for lineno, cmd, args in cfg.commands:
+        if cmd == "adcCfg":
+            bits, fmt = int(float(args[0])), int(float(args[1]))
+            if bits != 2:
+                raise ConfigError(
+                    f"{cfg.path}:{lineno}: adcCfg numADCBits {bits}: the DCA1000 raw path reads "
+                    "16-bit samples only (numADCBits 2)"
+                )
+            if fmt not in (1, 2):
+                raise ConfigError(
+                    f"{cfg.path}:{lineno}: adcCfg adcOutputFmt {fmt}: real-only ADC output is not "
+                    "supported (use 1 = complex 1x or 2 = complex 2x)"
+                )
+
+
 def make_dsp(
-    cfg, layout: str | AntennaLayout = "4lane", antenna: AntennaLayout = AWR2243BOOST, **overrides
+    cfg,
+    layout: str = "4lane",
+    antenna: AntennaLayout = AWR2243BOOST,
+    iq_swap: bool = False,
+    **overrides,
 ) -> tuple[FrameGeometry, RadarDsp]:
-    """FrameGeometry and RadarDsp for a parsed .cfg (drivers.ti.cfg.RadarCfg)."""
-    geom = FrameGeometry.from_chirp(cfg.chirp, layout)
+    """FrameGeometry and RadarDsp for a parsed .cfg (drivers.ti.cfg.RadarCfg).
+
+    layout: "4lane" (AR1243/AWR2243) or "2lane" (xWR16xx/18xx/68xx); antenna: the board's
+    AntennaLayout; iq_swap: Q before I in the stream; overrides: DspConfig fields that win
+    over the cfg (e.g. cfar="os").
+    """
+    check_adc_format(cfg)
+    geom = FrameGeometry.from_chirp(cfg.chirp, layout, iq_swap)
     return geom, RadarDsp(cfg.chirp, geom, DspConfig.from_cfg(cfg, **overrides), antenna)
 
 
-__all__ = ["DspConfig", "DspResult", "RadarDsp", "make_dsp"]
+__all__ = ["DspConfig", "DspResult", "RadarDsp", "check_adc_format", "make_dsp"]

@@ -35,6 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="antenna layout (drivers/dca1000/antenna.py)",
     )
     p.add_argument("--mirror-x", action="store_true", help="mirror the antenna layout in x")
+    p.add_argument("--iq-swap", action="store_true", help="Q comes before I in each sample pair")
     p.add_argument("--cfar", choices=("ca", "os"), default="ca", help="CFAR noise estimator")
     p.add_argument("--threshold-db", type=float, help="override the cfg's CFAR threshold (dB)")
     p.add_argument(
@@ -66,7 +67,9 @@ def run(args: argparse.Namespace) -> int:
         overrides["threshold_db"] = args.threshold_db
     if args.clutter_removal is not None:
         overrides["clutter_removal"] = args.clutter_removal == "on"
-    geom, dsp = make_dsp(cfg, "4lane" if args.lanes == "4" else "2lane", antenna, **overrides)
+    geom, dsp = make_dsp(
+        cfg, "4lane" if args.lanes == "4" else "2lane", antenna, args.iq_swap, **overrides
+    )
     expected = _num_frames(cfg)
     capture = RawCapture(args.adc, geom, expected_frames=expected)
     n = len(capture) if args.max_frames is None else min(len(capture), args.max_frames)

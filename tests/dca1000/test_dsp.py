@@ -324,3 +324,12 @@ def test_multi_object_setting_from_cfg(radar_cfg):
     )
     assert DspConfig.from_cfg(parse_cfg(text, "<mobf>")).multi_obj_threshold == 0.5
     assert DspConfig.from_cfg(radar_cfg).multi_obj_threshold is None
+
+
+@pytest.mark.parametrize(("adc", "why"), [("adcCfg 1 1", "16-bit"), ("adcCfg 2 0", "real-only")])
+def test_adc_formats_the_raw_path_cannot_read_are_refused(radar_cfg, adc, why):
+    from mmatch.errors import ConfigError
+
+    text = open(radar_cfg.path).read().replace("adcCfg 2 1", adc)
+    with pytest.raises(ConfigError, match=why):
+        make_dsp(parse_cfg(text, "<adc>"))
