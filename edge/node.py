@@ -37,6 +37,9 @@ log = logging.getLogger(__name__)
 
 PublishFn = Callable[[str, bytes], None]
 
+#: received frames stamped further ahead of our clock are refused (unsynchronised sender), s
+MAX_FUTURE_S = 1.0
+
 
 @dataclass
 class LinkState:
@@ -127,6 +130,9 @@ class Node:
         if not np.isfinite(frame.stamp):
             self.counters.rx_rejected["bad_stamp"] += 1
             raise DecodeError("non-finite stamp")
+        if frame.stamp > self.clock() + MAX_FUTURE_S:  # a sender whose clock runs ahead
+            self.counters.rx_rejected["future_stamp"] += 1
+            raise DecodeError(f"stamp {frame.stamp - self.clock():.3f} s in the future (clock not synchronised?)")
         with self._cond:
             if self.recorder is not None:
                 self.recorder.write(logschema.SHARED_RX_PREFIX + vehicle, payload, stamp=frame.stamp)

@@ -91,10 +91,12 @@ def test_bad_and_foreign_frames_are_dropped_and_counted():
         node.on_shared("cav1", b"garbage")
     with pytest.raises(DecodeError):
         node.on_shared("cav1", _cav_bytes("cav9", 1, 1.0))  # sender does not match its key
+    with pytest.raises(DecodeError, match="future"):
+        node.on_shared("cav1", _cav_bytes("cav1", 1, 1e12))  # its clock is not synchronised
     node.on_shared("cav2", _cav_bytes("cav2", 1, 1.0))      # not one of ego.cavs
     node.on_shared("ego1", _cav_bytes("ego1", 1, 1.0))      # our own echo
     assert node.counters.rx == 0
-    assert node.counters.rx_rejected == {"malformed": 1, "sender_mismatch": 1, "foreign": 1}
+    assert node.counters.rx_rejected == {"malformed": 1, "sender_mismatch": 1, "foreign": 1, "future_stamp": 1}
     assert node.process(_frame(1, 1.0))["status"] == "single"
 
 
