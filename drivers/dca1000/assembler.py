@@ -15,7 +15,11 @@ Policy:
   `max_jump_frames` ahead is counted in `bad_packets` and dropped, so it cannot shift later frames;
   the frame it should have filled stays incomplete and is flagged.
 * Duplicates are counted and ignored; packets for frames already emitted are counted as `late`.
-* Frames are always emitted in increasing index order.
+* Frames are always emitted in increasing index order. Frame indices count from the stream's
+  byte 0 (RECORD_START), so a receiver that joins late still cuts frames where the radar did;
+  the frame it joined inside is flagged.
+* The padding after the last frame (the FPGA zero-fills its last packet) is ignored when the
+  number of frames is known; otherwise a frame still open at the end is counted as truncated.
 """
 
 from __future__ import annotations
