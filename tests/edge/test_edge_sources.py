@@ -153,3 +153,29 @@ def test_dca1000_source_against_the_fake_fpga(tmp_path):
     rng = np.hypot(frames[0].points[:, 0], frames[0].points[:, 1])
     assert np.any(np.abs(rng - 10.0) < 0.5), rng
     assert raws and len(raws[0]) == src.geom.frame_bytes
+
+
+def test_camera_history_picks_closest_and_waits_for_a_late_image():
+    from edge.loop import CameraHistory
+    from mmatch.types import Detections
+
+    def det(t):
+        return Detections(np.zeros((0, 6), np.float32), np.zeros((0, 32), np.float32), t)
+
+    h = CameraHistory()
+    for t in (1.00, 1.05, 1.10):
+        h.put(det(t))
+    assert h.closest(1.06, 0.1).stamp == 1.05
+    assert h.closest(1.50, 0.1) is None  # nothing within tolerance
+    threading.Timer(0.05, h.put, args=(det(1.20),)).start()
+    t0 = time.monotonic()
+    got = h.closest(1.20, 0.1, wait_s=2.0)  # the image of this radar frame lands a bit later
+    assert got.stamp == 1.20 and time.monotonic() - t0 < 1.5
+
+
+def test_edge_bench_quick_numbers():
+    from edge.bench import run
+
+    out = run(quick=True)
+    assert out["recorder_frames_per_s"] > 20 and out["reader_messages_per_s"] > 40
+    assert 0 < out["zenoh_rtt_ms_median"] < 1000 and out["zenoh_rtt_lost"] == 0
