@@ -142,6 +142,10 @@ def fit_egomotion(points: np.ndarray, config: EgoMotionConfig | None = None) -> 
     vx = (d[i] * A[j, 1] - d[j] * A[i, 1]) / det
     vy = (A[i, 0] * d[j] - A[j, 0] * d[i]) / det
     V = np.column_stack([vx, vy])                                    # (H, 2)
+    V = V[V[:, 1] >= cfg.min_forward_mps]                            # the forward-motion prior
+    if len(V) == 0:
+        return _no_estimate(n, EgoStatus.NO_CONSENSUS,
+                            f"no hypothesis drives forward faster than {cfg.min_forward_mps} m/s", thr_all)
     R = (d[None, :] - V @ A.T) / thr[None, :]                        # (H, m) residual / threshold
     cost = np.minimum(R * R, 1.0).sum(axis=1)                        # MSAC
     v = V[int(np.argmin(cost))]
@@ -161,6 +165,9 @@ def fit_egomotion(points: np.ndarray, config: EgoMotionConfig | None = None) -> 
             break
         inl = new
 
+    if v[1] < cfg.min_forward_mps:
+        return _no_estimate(n, EgoStatus.NO_CONSENSUS,
+                            f"fitted forward speed {v[1]:.1f} m/s < {cfg.min_forward_mps}", thr_all)
     residual = np.zeros(n)
     residual[idx] = d - A @ v
     moving = np.zeros(n, bool)

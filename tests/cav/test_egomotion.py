@@ -124,3 +124,17 @@ def test_config_rejects_unknown_keys_and_bad_values():
         CavConfig.from_dict({"egomotion": {"threshold_mps": -1}})
     with pytest.raises(ConfigError, match="min_points"):
         CavConfig(egomotion=EgoMotionConfig(min_points=2))
+
+
+def test_forward_motion_prior_rejects_a_platoon_only_frame():
+    # the only consistent points are vehicles driving with us: they look like a radar backing up
+    platoon = clean_points(np.array([0.2, -6.0]), n=12)
+    e = fit_egomotion(platoon)
+    assert e.status is EgoStatus.NO_CONSENSUS and "forward" in e.reason
+    e = fit_egomotion(platoon, EgoMotionConfig(min_forward_mps=-np.inf))    # a rear-facing radar
+    assert e.ok and np.allclose(e.velocity, [0.2, -6.0], atol=1e-3)
+    # with the background present the prior changes nothing
+    pts = np.vstack([platoon, clean_points(np.array([0.2, 12.0]), n=10, seed=5)])
+    e = fit_egomotion(pts)
+    assert e.ok and np.allclose(e.velocity, [0.2, 12.0], atol=1e-3)
+    assert e.moving[:12].all() and not e.moving[12:].any()
