@@ -22,7 +22,7 @@ from mmatch.errors import ConfigError
 log = logging.getLogger(__name__)
 
 ROLES = ("cav", "ego", "both")
-RADAR_SOURCES = ("uart", "dca1000", "replay", "sim", "none")
+RADAR_SOURCES = ("uart", "dca1000", "replay", "sim")  # the loop is driven by radar frames
 CAMERA_SOURCES = ("opencv", "oak", "replay", "sim", "none")
 
 
@@ -261,8 +261,6 @@ def _cross_checks(cfg: VehicleConfig) -> None:
         raise ConfigError("camera.path: required when camera.source = \"replay\"")
     if cfg.camera.source in ("opencv", "oak") and not cfg.camera.calibration:
         raise ConfigError(f"camera.calibration: required when camera.source = \"{cfg.camera.source}\"")
-    if cfg.is_cav and cfg.radar.source == "none":
-        raise ConfigError("radar.source: a CAV needs a radar (got \"none\")")
     if cfg.zenoh.mode == "client" and not cfg.zenoh.connect:
         raise ConfigError("zenoh.connect: client mode needs at least one router endpoint")
     for key in ("listen", "connect"):
