@@ -36,6 +36,7 @@ class EgoMotionConfig:
         reverses slowly if at all). Without it a frame whose only consistent points are a
         platoon of vehicles yields their relative velocity (vy = -5 to -8 m/s seen in
         simulation). Set it to -inf for a radar looking backwards or sideways.
+    max_speed_mps: a fitted speed above this (m/s) is no estimate (junk input).
     seed: seed of the hypothesis sampler (the fit is deterministic per frame).
     """
 
@@ -49,6 +50,7 @@ class EgoMotionConfig:
     min_bearing_spread_deg: float = 15.0
     min_inliers: int = 6
     min_forward_mps: float = -3.0
+    max_speed_mps: float = 100.0
     seed: int = 0
 
 
@@ -129,9 +131,26 @@ class BackgroundConfig:
 
 
 @dataclass(frozen=True)
+class InputConfig:
+    """Plausibility limits on the inputs; rows beyond them are ignored, never an error.
+
+    Points farther than max_range_m (any coordinate), with |doppler| above max_doppler_mps,
+    or non-finite, are dropped; boxes with a non-finite value or descriptor, a score
+    outside 0-1, a depth outside (0, max_range_m] or a corner beyond max_pixel are not
+    vehicles. The limits keep every product of `process_view` within the wire format
+    (+-327 m, +-327 m/s, +-16383 px), so encoding it cannot fail.
+    """
+
+    max_range_m: float = 300.0
+    max_doppler_mps: float = 300.0
+    max_pixel: float = 16000.0
+
+
+@dataclass(frozen=True)
 class CavConfig:
     """Every CAV-side setting."""
 
+    inputs: InputConfig = field(default_factory=InputConfig)
     egomotion: EgoMotionConfig = field(default_factory=EgoMotionConfig)
     separation: SeparationConfig = field(default_factory=SeparationConfig)
     clustering: ClusteringConfig = field(default_factory=ClusteringConfig)
@@ -167,13 +186,17 @@ class CavConfig:
         return dataclasses.asdict(self)
 
 
-_SECTIONS = {"egomotion": EgoMotionConfig, "separation": SeparationConfig,
+_SECTIONS = {"inputs": InputConfig, "egomotion": EgoMotionConfig, "separation": SeparationConfig,
              "clustering": ClusteringConfig, "background": BackgroundConfig}
 
 
 def _check(cfg: CavConfig) -> None:
     """Cross-field checks: fail at start, naming the key."""
-    positive = [("egomotion.threshold_mps", cfg.egomotion.threshold_mps),
+    positive = [("inputs.max_range_m", cfg.inputs.max_range_m),
+                ("inputs.max_doppler_mps", cfg.inputs.max_doppler_mps),
+                ("inputs.max_pixel", cfg.inputs.max_pixel),
+                ("egomotion.threshold_mps", cfg.egomotion.threshold_mps),
+                ("egomotion.max_speed_mps", cfg.egomotion.max_speed_mps),
                 ("egomotion.edge_az_deg", cfg.egomotion.edge_az_deg),
                 ("egomotion.hypotheses", cfg.egomotion.hypotheses),
                 ("egomotion.min_pair_sin", cfg.egomotion.min_pair_sin),
@@ -200,6 +223,8 @@ def _check(cfg: CavConfig) -> None:
     for key, value in non_negative:
         if not value >= 0:
             raise ConfigError(f"cav.{key}: must be >= 0, got {value}")
+    if cfg.inputs.max_range_m > 327.0 or cfg.inputs.max_doppler_mps > 327.0 or cfg.inputs.max_pixel > 16383.0:
+        raise ConfigError("cav.inputs: limits must stay within the wire format (327 m, 327 m/s, 16383 px)")
     if cfg.egomotion.min_points < 3:
         raise ConfigError(f"cav.egomotion.min_points: must be >= 3, got {cfg.egomotion.min_points}")
     if cfg.egomotion.min_inliers < 3:

@@ -165,6 +165,9 @@ def fit_egomotion(points: np.ndarray, config: EgoMotionConfig | None = None) -> 
             break
         inl = new
 
+    if not np.linalg.norm(v) <= cfg.max_speed_mps:
+        return _no_estimate(n, EgoStatus.NO_CONSENSUS,
+                            f"fitted speed {np.linalg.norm(v):.1f} m/s > {cfg.max_speed_mps}", thr_all)
     if v[1] < cfg.min_forward_mps:
         return _no_estimate(n, EgoStatus.NO_CONSENSUS,
                             f"fitted forward speed {v[1]:.1f} m/s < {cfg.min_forward_mps}", thr_all)

@@ -107,7 +107,7 @@ def process_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, ca
     """Run the CAV-side stages on one frame.
 
     points: float32 (N, 5) x, y, z, doppler, snr (radar frame; m, m/s, dB); rows with a
-        non-finite value are ignored.
+        non-finite or implausible value (config `inputs`) are ignored.
     boxes: float32 (M, 6) u1, v1, u2, v2 (px), score, depth (m); features: float32 (M, 32).
     camera: intrinsics and T_cam_radar; radar_height: m; stamp: capture time, s.
     Returns the shared frame (sender's radar frame) and milliseconds per stage
@@ -127,10 +127,13 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     cfg = config or CavConfig()
     points, boxes, features = _check_inputs(points, boxes, features)
     n_in = len(points)
-    finite = np.all(np.isfinite(points), axis=1)
-    rows = np.flatnonzero(finite)
+    lim = cfg.inputs
+    with np.errstate(invalid="ignore"):
+        usable = np.all(np.isfinite(points), axis=1) & np.all(np.abs(points[:, :3]) <= lim.max_range_m, axis=1) \
+            & (np.abs(points[:, 3]) <= lim.max_doppler_mps)
+    rows = np.flatnonzero(usable)
     if len(rows) < n_in:
-        log.debug("dropping %d non-finite points", n_in - len(rows))
+        log.debug("dropping %d non-finite or implausible points", n_in - len(rows))
         points = points[rows]
     timings: dict[str, float] = {}
 
@@ -142,8 +145,12 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     timings["egomotion"] = (t1 - t0) * 1e3
 
     # ---- 2. frustum separation
-    box_ok = np.all(np.isfinite(boxes), axis=1) & (boxes[:, 4] >= cfg.separation.min_box_score) \
-        & (boxes[:, 5] > 0) & (boxes[:, 2] >= boxes[:, 0]) & (boxes[:, 3] >= boxes[:, 1])
+    with np.errstate(invalid="ignore"):
+        box_ok = np.all(np.isfinite(boxes), axis=1) & np.all(np.isfinite(features), axis=1) \
+            & (boxes[:, 4] >= max(cfg.separation.min_box_score, 0.0)) & (boxes[:, 4] <= 1.0) \
+            & (boxes[:, 5] > 0) & (boxes[:, 5] <= lim.max_range_m) \
+            & np.all(np.abs(boxes[:, :4]) <= lim.max_pixel, axis=1) \
+            & (boxes[:, 2] >= boxes[:, 0]) & (boxes[:, 3] >= boxes[:, 1])
     vbox = np.flatnonzero(box_ok).astype(np.int32)          # vehicle v <-> box vbox[v]
     vb = boxes[vbox]
     V = len(vb)

@@ -124,6 +124,8 @@ def test_config_rejects_unknown_keys_and_bad_values():
         CavConfig.from_dict({"egomotion": {"threshold_mps": -1}})
     with pytest.raises(ConfigError, match="min_points"):
         CavConfig(egomotion=EgoMotionConfig(min_points=2))
+    with pytest.raises(ConfigError, match="wire format"):
+        CavConfig.from_dict({"inputs": {"max_range_m": 400}})
 
 
 def test_forward_motion_prior_rejects_a_platoon_only_frame():

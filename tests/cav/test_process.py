@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from mmatch.cav.config import BackgroundConfig, CavConfig
 from mmatch.cav.process import STAGES, CavInputError, process_view, run_view
@@ -167,3 +169,29 @@ def test_without_an_ego_motion_estimate_boxes_keep_their_points():
     assert np.all(np.isnan(frame.ego_velocity))
     v = int(np.flatnonzero(f.box_ids[frame.vehicle_box_index] == k)[0])
     assert np.sum(frame.vehicle_index == v) >= 0.5 * len(pts)
+
+
+_floats = st.floats(allow_nan=True, allow_infinity=True, width=32)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10**6), n=st.integers(0, 60), m=st.integers(0, 6), junk=st.lists(_floats, min_size=8, max_size=8),
+       scale=st.sampled_from([1.0, 50.0, 1e4]))
+def test_any_input_of_the_right_shape_gives_an_encodable_frame(seed, n, m, junk, scale):
+    rng = np.random.default_rng(seed)
+    f = make_frame(seed % 50)
+    pts = (rng.normal(0, scale, (n, 5))).astype(np.float32)
+    boxes = np.column_stack([rng.uniform(-100, 1400, (m, 4)) * scale / 50, rng.uniform(-0.5, 1.5, m),
+                             rng.uniform(-10, 400, m)]).astype(np.float32)
+    feats = rng.uniform(-0.2, 1.2, (m, 32)).astype(np.float32)
+    flat = np.concatenate([pts.ravel(), boxes.ravel(), feats.ravel()])
+    if flat.size:                                   # sprinkle NaN / inf / extremes at random places
+        where = rng.integers(0, flat.size, len(junk))
+        flat[where] = np.asarray(junk, np.float32)
+        pts = flat[:pts.size].reshape(pts.shape)
+        boxes = flat[pts.size:pts.size + boxes.size].reshape(boxes.shape)
+        feats = flat[pts.size + boxes.size:].reshape(feats.shape)
+    frame, ms = process_view(pts, boxes, feats, f.camera, 0.8, 1.0)
+    assert set(ms) == set(STAGES)
+    back = decode(encode(frame))
+    assert back.num_vehicles == frame.num_vehicles and len(back.vehicle_points) == len(frame.vehicle_points)
