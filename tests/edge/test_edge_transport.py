@@ -92,10 +92,25 @@ def test_two_peers_exchange_and_count_bad_payloads():
     assert drops.get("foreign") == 1
 
 
-def test_close_is_safe_twice():
-    t = Transport(ZenohSection(listen=[f"tcp/127.0.0.1:{free_port()}"])).open()
-    t.close()
-    t.close()
+def test_close_is_safe_twice_and_leaves_nothing_open():
+    from edge_proc import open_fds
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    before = None
+    for k in range(4):  # the first cycle starts zenoh's runtime (its threads and epolls stay)
+        if k == 1:
+            before = open_fds()
+        a = Transport(ZenohSection(listen=[ep])).open()
+        b = Transport(ZenohSection(connect=[ep])).open()
+        assert b.wait_for_peers(5.0)
+        b.put(keys.shared("x"), b"1")
+        b.close()
+        a.close()
+        a.close()
+    deadline = time.monotonic() + 5
+    while open_fds() > before and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert open_fds() <= before
 
 
 def test_client_mode_reaches_a_listening_node():

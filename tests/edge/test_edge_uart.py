@@ -171,6 +171,9 @@ def test_unplug_and_replug_recover_without_restart(tmp_path):
 
 
 def test_garbage_is_counted_not_raised(tmp_path):
+    from edge_proc import open_fds
+
+    before = open_fds()
     port = Pty()
     cfg = config.load(_uart_cfg(tmp_path / "g.toml", port.path))
     rng = np.random.default_rng(2)
@@ -183,6 +186,7 @@ def test_garbage_is_counted_not_raised(tmp_path):
             got = src.read(0.2)
         c = src.counters()
     port.unplug()
+    assert open_fds() == before  # the source closed its port
     assert got is not None and got.frame_number == 9
     assert c["bytes_skipped"] >= 5000 and c["frames"] == 1
 
