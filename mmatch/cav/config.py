@@ -87,6 +87,7 @@ class SeparationConfig:
     moving_depth_rel: float = 0.3
     box_margin_px: float = 0.0
     bearing_margin_deg: float = 0.5
+    bearing_margin_growth_deg: float = 0.0
     elevation_margin_deg: float = 4.0
     edge_px: float = 0.0
     min_box_score: float = 0.0
@@ -213,6 +214,7 @@ def _check(cfg: CavConfig) -> None:
                     ("separation.depth_rel", cfg.separation.depth_rel),
                     ("separation.moving_depth_rel", cfg.separation.moving_depth_rel),
                     ("separation.bearing_margin_deg", cfg.separation.bearing_margin_deg),
+                    ("separation.bearing_margin_growth_deg", cfg.separation.bearing_margin_growth_deg),
                     ("separation.elevation_margin_deg", cfg.separation.elevation_margin_deg),
                     ("separation.edge_px", cfg.separation.edge_px),
                     ("separation.moving_ratio", cfg.separation.moving_ratio),

@@ -109,7 +109,12 @@ def separate(points: np.ndarray, moving: np.ndarray, boxes: np.ndarray, camera: 
     b = np.asarray(boxes, np.float64)
     active = b[:, 4] >= cfg.min_box_score
     mg = cfg.box_margin_px
-    mu = mg + float(camera.K[0, 0]) * np.tan(np.radians(cfg.bearing_margin_deg))
+    # wedge margin: the radar's azimuth noise grows off boresight; in pixels at the box's column
+    fx, cx = float(camera.K[0, 0]), float(camera.K[0, 2])
+    az_box = np.arctan(np.abs((b[:, 0] + b[:, 2]) / 2 - cx) / fx)
+    margin = np.radians(cfg.bearing_margin_deg
+                        + cfg.bearing_margin_growth_deg * np.clip(az_box / np.radians(60.0), 0, 1) ** 2)
+    mu = mg + fx * margin / np.cos(az_box) ** 2
     # a box within edge_px of the image's left or right edge is cut by it: open that side
     left = b[:, 0] <= cfg.edge_px
     right = b[:, 2] >= camera.image_size[0] - 1 - cfg.edge_px
