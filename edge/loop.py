@@ -249,8 +249,6 @@ class VehicleLoop:
                 if now - last_status >= cfg.loop.status_interval_s:
                     self._status()
                     last_status = now
-                if self.recorder is not None:
-                    self.recorder.tick()
         finally:
             self.stop.set()
             self.notifier.stopping()

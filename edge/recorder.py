@@ -10,7 +10,7 @@
   below `floor_mb` everything stops. Both resume when space returns. Dropped writes are
   counted by reason.
 * Log times come from a strictly increasing ns clock shared by every topic, so file order
-  is the order of `write` calls across threads.
+  is the order of `write` calls across threads. A writer thread does the file work.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import collections
 import json
 import logging
 import os
+import queue
 import shutil
 import threading
 import time
@@ -68,13 +69,16 @@ class _RawFile:
 class Recorder:
     """Thread-safe MCAP writer with rotation and a disk floor. A context manager.
 
-    `write(topic, data)` takes bytes (raw/binary topics) or a dict (JSON topics) and returns
-    True when the message was written. `stamp` (s) becomes the MCAP publish time.
+    `write(topic, data)` takes bytes (raw/binary topics) or a dict (JSON topics), gives the
+    message its log time and queues it; a writer thread does the file work, so a slow disk
+    never stalls the sensor threads or the loop (a full queue drops and counts). It returns
+    False when the disk floor, a full queue or a close refused the message. `stamp` (s)
+    becomes the MCAP publish time.
     """
 
     def __init__(self, cfg: LogSection, *, prefix: str = "mmatch", config_text: str = "",
                  free_bytes: Callable[[Path], int] | None = None,
-                 clock_ns: Callable[[], int] = time.time_ns) -> None:
+                 clock_ns: Callable[[], int] = time.time_ns, queue_size: int = 10000) -> None:
         if not cfg.dir:
             raise DeviceError("recorder: log.dir is empty")
         self.cfg = cfg
@@ -83,15 +87,19 @@ class Recorder:
         self.config_text = config_text
         self._free_bytes = free_bytes or (lambda p: shutil.disk_usage(p).free)
         self._clock_ns = clock_ns
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()          # front: log times, floors, queue order
+        self._queue: queue.Queue = queue.Queue(queue_size)
+        self._thread: threading.Thread | None = None
+        # writer-thread state
         self._writer: Any = None
         self._file: _RawFile | None = None
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
         self._seq: dict[int, int] = collections.defaultdict(int)
-        self._last_ns = 0
         self._opened_at = 0.0
         self._last_flush = 0.0
+        # front state
+        self._last_ns = 0
         self._last_disk_check = -1e9
         self._free = 1 << 62
         self._metadata: dict[str, dict[str, str]] = {}
@@ -102,7 +110,7 @@ class Recorder:
         self.all_stopped = False
         self._closed = False
 
-    # ------------------------------------------------------------------ files
+    # ------------------------------------------------------------------ life
     def open(self) -> Recorder:
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
@@ -113,8 +121,10 @@ class Recorder:
             (self.dir / f"{self.prefix}-{stamp}.config.toml").write_text(self.config_text)
         with self._lock:
             self._check_disk(force=True)
-            if not self.all_stopped:
-                self._start_file()
+        if not self.all_stopped:
+            self._start_file()  # before the thread: a bad folder fails here, at start
+        self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
+        self._thread.start()
         return self
 
     def __enter__(self) -> Recorder:
@@ -122,6 +132,62 @@ class Recorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def close(self) -> None:
+        """Write what is queued, finish the file (summary + footer); safe twice."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        if self._thread is not None:
+            self._queue.put(("stop",))
+            self._thread.join(30.0)
+            self._thread = None
+        else:
+            self._finish_file()
+
+    # ------------------------------------------------------------------ writer thread
+    def _run(self) -> None:
+        while True:
+            try:
+                item = self._queue.get(timeout=min(self.cfg.flush_s, 0.5))
+            except queue.Empty:
+                self._flush_if_due()
+                continue
+            op = item[0]
+            try:
+                if op == "msg":
+                    self._write_now(*item[1:])
+                elif op == "meta":
+                    if self._writer is not None:
+                        self._writer.add_metadata(item[1], item[2])
+                elif op == "finish":
+                    self._finish_file()
+                elif op == "stop":
+                    self._finish_file()
+                    return
+                self._flush_if_due()
+            except OSError as exc:  # disk error: this file is given up, the next write starts anew
+                self.dropped["io_error"] += 1
+                log.error("recorder: %s; closing %s", exc, self.files[-1] if self.files else "?")
+                self._abandon_file()
+
+    def _write_now(self, topic: str, log_ns: int, pub_ns: int, payload: bytes) -> None:
+        if self._writer is None:
+            self._start_file()
+        self._maybe_rotate()
+        cid = self._channel(topic)
+        self._writer.add_message(channel_id=cid, log_time=log_ns, publish_time=pub_ns,
+                                 data=payload, sequence=self._seq[cid])
+        self._seq[cid] += 1
+        self.written += 1
+
+    def _flush_if_due(self) -> None:
+        """Close the open chunk at least every flush_s: a crash loses at most that much."""
+        now = time.monotonic()
+        if self._writer is not None and now - self._last_flush >= self.cfg.flush_s:
+            self._writer.flush()
+            self._last_flush = now
 
     def _new_path(self) -> Path:
         """<prefix>-<UTC yyyymmdd-hhmmss-mmm>-<n>.mcap: names sort in time order; n counts the
@@ -146,7 +212,9 @@ class Recorder:
         self._writer.start(profile="", library="mmatch-edge")
         if self.config_text:
             self._writer.add_metadata("config", {"toml": self.config_text})
-        for name, meta in self._metadata.items():
+        with self._lock:
+            metas = dict(self._metadata)
+        for name, meta in metas.items():
             self._writer.add_metadata(name, meta)
         self._channels.clear()
         self._schemas.clear()
@@ -165,22 +233,44 @@ class Recorder:
             self._file.close()
             self._writer, self._file = None, None
 
-    def close(self) -> None:
-        """Finish the current file (summary + footer); safe twice."""
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            self._finish_file()
+    def _abandon_file(self) -> None:
+        if self._file is not None:
+            try:
+                self._file.close()
+            except OSError:
+                pass
+        self._writer, self._file = None, None
 
+    def _maybe_rotate(self) -> None:
+        assert self._file is not None
+        age = time.monotonic() - self._opened_at
+        if self._file.tell() >= self.cfg.rotate_mb * MB or age >= self.cfg.rotate_s:
+            self._finish_file()
+            self._start_file()
+
+    def _channel(self, topic: str) -> int:
+        cid = self._channels.get(topic)
+        if cid is not None:
+            return cid
+        name, enc, data, msg_enc = logschema.schema_for(topic)
+        sid = 0
+        if enc:
+            sid = self._schemas.get(name, 0)
+            if not sid:
+                sid = self._writer.register_schema(name=name, encoding=enc, data=data)
+                self._schemas[name] = sid
+        cid = self._writer.register_channel(topic=topic, message_encoding=msg_enc, schema_id=sid)
+        self._channels[topic] = cid
+        return cid
+
+    # ------------------------------------------------------------------ front
     def set_metadata(self, name: str, meta: dict[str, str]) -> None:
         """A metadata record written now and at the start of every later file."""
         with self._lock:
             self._metadata[name] = dict(meta)
-            if self._writer is not None:
-                self._writer.add_metadata(name, dict(meta))
+            if not self._closed and self._thread is not None:
+                self._queue.put(("meta", name, dict(meta)))
 
-    # ------------------------------------------------------------------ disk
     def _check_disk(self, force: bool = False) -> None:
         now = time.monotonic()
         if not force and now - self._last_disk_check < 1.0:
@@ -199,30 +289,9 @@ class Recorder:
         if all_stop != self.all_stopped:
             log.warning("recorder: all logging %s (free %.0f MB, floor %.0f MB)",
                         "stopped" if all_stop else "resumed", self._free / MB, self.cfg.floor_mb)
-            if all_stop:
-                self._finish_file()
+            if all_stop and self._thread is not None:
+                self._queue.put(("finish",))  # a complete, indexed file before the disk fills
         self.raw_stopped, self.all_stopped = raw_stop, all_stop
-
-    # ------------------------------------------------------------------ writing
-    def _channel(self, topic: str) -> int:
-        cid = self._channels.get(topic)
-        if cid is not None:
-            return cid
-        name, enc, data, msg_enc = logschema.schema_for(topic)
-        sid = 0
-        if enc:
-            sid = self._schemas.get(name, 0)
-            if not sid:
-                sid = self._writer.register_schema(name=name, encoding=enc, data=data)
-                self._schemas[name] = sid
-        cid = self._writer.register_channel(topic=topic, message_encoding=msg_enc, schema_id=sid)
-        self._channels[topic] = cid
-        return cid
-
-    def now_ns(self) -> int:
-        """The next log time: wall clock ns, strictly increasing."""
-        with self._lock:
-            return self._next_ns()
 
     def _next_ns(self) -> int:
         t = max(self._clock_ns(), self._last_ns + 1)
@@ -230,11 +299,13 @@ class Recorder:
         return t
 
     def write(self, topic: str, data: bytes | dict, stamp: float | None = None) -> bool:
-        """Log one message; False (and counted) when the disk floor or a close stops it."""
-        payload = data if isinstance(data, (bytes, bytearray, memoryview)) else \
+        """Queue one message; False (and counted) when the disk floor, a full queue or a close
+        refuses it. Log times are strictly increasing in call order across threads."""
+        payload = bytes(data) if isinstance(data, (bytes, bytearray, memoryview)) else \
             json.dumps(data, separators=(",", ":")).encode()
+        logschema.schema_for(topic)  # an unknown topic is a bug: raise in the caller
         with self._lock:
-            if self._closed:
+            if self._closed or self._thread is None:
                 self.dropped["closed"] += 1
                 return False
             self._check_disk()
@@ -244,38 +315,17 @@ class Recorder:
             if self.raw_stopped and logschema.is_raw(topic):
                 self.dropped["raw_disk_floor"] += 1
                 return False
-            if self._writer is None:
-                self._start_file()
-            self._maybe_rotate()
-            cid = self._channel(topic)
             log_ns = self._next_ns()
             pub_ns = log_ns if stamp is None else max(int(round(stamp * 1e9)), 0)
-            self._writer.add_message(channel_id=cid, log_time=log_ns, publish_time=pub_ns,
-                                     data=bytes(payload), sequence=self._seq[cid])
-            self._seq[cid] += 1
-            self.written += 1
-            now = time.monotonic()
-            if now - self._last_flush >= self.cfg.flush_s:
-                self._writer.flush()
-                self._last_flush = now
+            try:
+                self._queue.put_nowait(("msg", topic, log_ns, pub_ns, payload))
+            except queue.Full:
+                self.dropped["queue_full"] += 1
+                return False
         return True
-
-    def _maybe_rotate(self) -> None:
-        assert self._file is not None
-        age = time.monotonic() - self._opened_at
-        if self._file.tell() >= self.cfg.rotate_mb * MB or age >= self.cfg.rotate_s:
-            self._finish_file()
-            self._start_file()
-
-    def tick(self) -> None:
-        """Close the open chunk when `flush_s` has passed (call periodically when idle)."""
-        with self._lock:
-            if self._writer is not None and time.monotonic() - self._last_flush >= self.cfg.flush_s:
-                self._writer.flush()
-                self._last_flush = time.monotonic()
 
     def stats(self) -> dict[str, Any]:
         with self._lock:
-            return {"written": self.written, "files": len(self.files), "dropped": dict(self.dropped),
-                    "raw_stopped": self.raw_stopped, "all_stopped": self.all_stopped,
-                    "free_mb": round(self._free / MB, 1)}
+            return {"written": self.written, "queued": self._queue.qsize(), "files": len(self.files),
+                    "dropped": dict(self.dropped), "raw_stopped": self.raw_stopped,
+                    "all_stopped": self.all_stopped, "free_mb": round(self._free / MB, 1)}
