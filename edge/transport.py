@@ -137,6 +137,18 @@ class DropCounter:
             return dict(self.counts)
 
 
+def _publisher_qos(key: str) -> dict[str, Any]:
+    """Sensor-like streams: never block the loop (drop under congestion), no batching delay
+    (express); shared frames first, fused results next, health in the background."""
+    import zenoh
+
+    kind = (keys.parse(key) or ("", ""))[1]
+    priority = {"shared": zenoh.Priority.REAL_TIME, "fused": zenoh.Priority.INTERACTIVE_HIGH,
+                "health": zenoh.Priority.BACKGROUND}.get(kind, zenoh.Priority.DATA)
+    return {"congestion_control": zenoh.CongestionControl.DROP, "express": kind != "health",
+            "priority": priority}
+
+
 class Transport:
     """One Zenoh session with our publishers and subscribers. A context manager."""
 
@@ -197,7 +209,7 @@ class Transport:
         with self._lock:
             pub = self._publishers.get(key)
             if pub is None:
-                pub = self.session.declare_publisher(key)
+                pub = self.session.declare_publisher(key, **_publisher_qos(key))
                 self._publishers[key] = pub
         pub.put(payload)
         self.published += 1
