@@ -11,7 +11,7 @@ log = logging.getLogger(__name__)
 
 
 def add_common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", "-c", required=True, help="vehicle config (TOML), e.g. cfg/vehicle-cav.toml")
+    p.add_argument("--config", "-c", required=True, help="vehicle config (TOML), e.g. cfg/vehicle.toml or cfg/vehicle-cav-sim.toml")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override one config value (TOML syntax for the value; repeatable)")
     p.add_argument("--log-dir", help="shorthand for --set log.dir=DIR")
