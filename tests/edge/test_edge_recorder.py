@@ -162,3 +162,31 @@ def test_sigkilled_writer_leaves_a_readable_file(tmp_path):
     assert got == list(range(len(got)))
     # at most the last chunk (<= ~2 KiB of ~150-byte messages) or flush interval is lost
     assert len(got) >= last - 40
+
+
+def test_disk_error_costs_the_file_not_the_recorder(tmp_path, monkeypatch):
+    from edge import recorder as recmod
+
+    with Recorder(_cfg(tmp_path, chunk_kb=1.0)) as rec:
+        for i in range(20):
+            rec.write(logschema.FUSED, {"i": i, "pad": "z" * 100})
+        deadline = time.monotonic() + 5
+        while rec.written < 20 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        real_write = recmod._RawFile.write
+        calls = {"n": 0}
+
+        def failing_write(self, data):
+            calls["n"] += 1
+            if calls["n"] == 1:
+                raise OSError(5, "Input/output error")
+            return real_write(self, data)
+
+        monkeypatch.setattr(recmod._RawFile, "write", failing_write)
+        for i in range(20, 60):
+            rec.write(logschema.FUSED, {"i": i, "pad": "z" * 100})
+    assert rec.dropped.get("io_error") == 1
+    assert len(rec.files) == 2
+    first, second = ([json.loads(m.data)["i"] for m in logreader.read_messages(f)] for f in rec.files)
+    assert first == list(range(len(first))) and len(first) >= 5  # its complete chunks survive
+    assert second[-1] == 59 and len(second) >= 35  # recording went on in a new file
