@@ -2,6 +2,12 @@
 
 Defaults live here; `CavConfig.from_dict` builds one from a parsed config file and rejects
 unknown keys and impossible values with `ConfigError` naming the key.
+
+The separation and clustering defaults were chosen on simulated scenes (`mmatch sim`, 200
+hard + 200 mixed, alignment success with the oracle matcher): they sit on a plateau where
+changing any one of them (box margin 0-15 px, depth windows, DBSCAN radii, moving ratio,
+elevation margin) moves the mean success by no more than about 2 points, except wider
+box margins, which let guardrail and facade returns in and cost up to 6 points.
 """
 
 from __future__ import annotations
