@@ -95,6 +95,8 @@ class SimSection:
     view: str = _opt("auto", choices=("auto", "ego", "cav"),
                      doc="which simulated vehicle this process is; auto: cav for role cav, else ego")
     time_offset_s: float = _opt(0.0, doc="scenario time = shared clock + this, s")
+    clock_offset_s: float = _opt(0.0, lo=-10.0, hi=10.0,
+                                 doc="this vehicle's clock error: stamps = true capture time + this, s")
 
 
 @dataclass(frozen=True)

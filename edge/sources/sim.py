@@ -1,7 +1,7 @@
 """Simulated sensors: `mmatch.sim.scenario` played over the shared clock.
 
-Frames come at `sim.rate_hz` on the grid k / rate + `sim.phase_s` of the shared clock
-(time.time()); every process that uses the same seed and mode sees the same world, each
+Frames come at `sim.rate_hz` on the grid k / rate + `sim.phase_s` of the vehicle's own
+clock (time.time() + `sim.clock_offset_s`, its synchronisation error); every process that uses the same seed and mode sees the same world, each
 from its own vehicle (`sim.view`). A frame is rendered just ahead of its capture time
 and delivered at it, as a sensor delivers what it captured. The camera of the same vehicle
 gets the detections of the same observation.
@@ -57,8 +57,12 @@ class SimRadar(RadarSource):
         k = math.ceil((t - self.cfg.sim.phase_s) / self.period - 1e-9)
         return k * self.period + self.cfg.sim.phase_s
 
+    def _own_clock(self) -> float:
+        """This vehicle's clock: true (shared) time + its synchronisation error."""
+        return self._clock() + self.cfg.sim.clock_offset_s
+
     def read(self, timeout: float) -> RadarFrame | None:
-        now = self._clock()
+        now = self._own_clock()
         if self._next is None or self._next < now - self.period:
             if self._next is not None:
                 self.skipped += 1
@@ -72,9 +76,10 @@ class SimRadar(RadarSource):
         if t - lead - now > 0:
             self._sleep(t - lead - now)
         r0 = time.perf_counter()
-        obs = self.scenario.observe(self.view, t + self.cfg.sim.time_offset_s)
+        # captured at true time t - clock_offset, stamped on the vehicle's own clock
+        obs = self.scenario.observe(self.view, t - self.cfg.sim.clock_offset_s + self.cfg.sim.time_offset_s)
         self._render_s = 0.8 * self._render_s + 0.2 * (time.perf_counter() - r0)
-        wait = t - self._clock()
+        wait = t - self._own_clock()
         if wait > 0:
             self._sleep(wait)
         self._next = t + self.period
@@ -82,7 +87,7 @@ class SimRadar(RadarSource):
         if self.camera_feed is not None:
             self.camera_feed.put(Detections(boxes=obs.boxes, features=obs.features, stamp=t))
         return RadarFrame(points=obs.points, stamp=t, frame_number=self._frame_number,
-                          host_time=self._clock())
+                          host_time=self._own_clock())
 
     def counters(self) -> dict[str, int]:
         return {"frames": self._frame_number, "late_skips": self.skipped}

@@ -179,3 +179,17 @@ def test_edge_bench_quick_numbers():
     out = run(quick=True)
     assert out["recorder_frames_per_s"] > 20 and out["reader_messages_per_s"] > 40
     assert 0 < out["zenoh_rtt_ms_median"] < 1000 and out["zenoh_rtt_lost"] == 0
+
+
+def test_sim_vehicle_clock_offset_shifts_stamps_not_the_world():
+    seen = []
+    cfg = config.from_dict({"vehicle": {"role": "cav"}, "sim": {"clock_offset_s": 0.3, "mode": "easy"}})
+    fake_now = [5000.0]
+    radar = SimRadar(cfg, clock=lambda: fake_now[0], sleep=lambda dt: fake_now.__setitem__(0, fake_now[0] + dt))
+    real = radar.scenario.observe
+    radar.scenario.observe = lambda view, t: (seen.append(t), real(view, t))[1]
+    f = None
+    while f is None:
+        f = radar.read(0.2)
+    assert f.stamp == pytest.approx(seen[0] + 0.3)  # own clock runs 0.3 s ahead of true time
+    assert f.stamp == pytest.approx(round(f.stamp / 0.05) * 0.05)  # on its own 20 Hz grid
