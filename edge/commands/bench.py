@@ -16,6 +16,7 @@ SUITES: dict[str, str] = {
     "dsp": "drivers.dca1000.bench:run",
     "camera": "drivers.camera.bench:run",
     "pipeline": "mmatch.bench:run",
+    "edge": "edge.bench:run",
 }
 
 
