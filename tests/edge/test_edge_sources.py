@@ -8,7 +8,6 @@ import time
 
 import numpy as np
 import pytest
-from conftest import free_port
 
 from edge import config
 from edge.loop import SensorReader
@@ -16,6 +15,15 @@ from edge.sources import open_camera, open_radar
 from edge.sources.base import NoCamera
 from edge.sources.sim import SimCamera, SimRadar
 from mmatch.errors import ConfigError
+
+
+def free_port(kind: int = 1) -> int:
+    """A port on 127.0.0.1 that is free right now (TCP by default; socket.SOCK_DGRAM for UDP)."""
+    import socket
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
 
 
 def test_unknown_backend_is_refused_by_name():

@@ -14,7 +14,7 @@ def test_help_is_fast_and_lists_commands():
     t0 = time.monotonic()
     out = subprocess.run([sys.executable, "-m", "edge.cli", "--help"], capture_output=True, text=True, check=True)
     assert time.monotonic() - t0 < 20
-    for cmd in ("sim", "eval", "demo", "bench"):
+    for cmd in ("sim", "eval", "demo", "egomotion", "bench", "run", "replay", "parse-uart", "dsp"):
         assert cmd in out.stdout
     mods = subprocess.run([sys.executable, "-c", "import edge.cli, sys; edge.cli.build_parser();"
                            "print(','.join(m for m in ('cv2','onnxruntime','zenoh','depthai','sklearn') if m in sys.modules))"],
