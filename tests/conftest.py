@@ -7,16 +7,11 @@ import socket
 
 import pytest
 
+from netutil import free_port
+
 os.environ["DEPTHAI_TELEMETRY"] = "0"
 os.environ["DEPTHAI_PROTOCOL"] = "usb"
 os.environ["DEPTHAI_DISABLE_STARTUP_NOTIFICATIONS"] = "1"
-
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    """A port on 127.0.0.1 that is free right now (TCP by default, SOCK_DGRAM for UDP)."""
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture

@@ -20,19 +20,12 @@ from edge_proc import mmatch, start, stop, wait_for, write_vehicle_cfg
 from edge import keys
 from edge.config import ZenohSection
 from edge.transport import Transport
+from netutil import free_port
 
 pytestmark = pytest.mark.slow
 
 RATE = 20.0
 WINDOW_S = 6.0
-
-
-def free_port(kind: int = 1) -> int:
-    """A port on 127.0.0.1 that is free right now (TCP by default; socket.SOCK_DGRAM for UDP)."""
-    import socket
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 

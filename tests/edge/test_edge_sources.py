@@ -15,14 +15,7 @@ from edge.sources import open_camera, open_radar
 from edge.sources.base import NoCamera
 from edge.sources.sim import SimCamera, SimRadar
 from mmatch.errors import ConfigError
-
-
-def free_port(kind: int = 1) -> int:
-    """A port on 127.0.0.1 that is free right now (TCP by default; socket.SOCK_DGRAM for UDP)."""
-    import socket
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from netutil import free_port
 
 
 

@@ -11,14 +11,7 @@ from edge import keys
 from edge.config import ZenohSection
 from edge.transport import KeepNewest, Transport, zenoh_config_json
 from mmatch.errors import ConfigError, DecodeError
-
-
-def free_port(kind: int = 1) -> int:
-    """A port on 127.0.0.1 that is free right now (TCP by default; socket.SOCK_DGRAM for UDP)."""
-    import socket
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from netutil import free_port
 
 
 
