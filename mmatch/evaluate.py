@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER
 from mmatch.errors import MMatchError, SceneFormatError
 from mmatch.metrics import is_success, pair_counts, rre_deg, rte_m, summary
 from mmatch.types import Scene
@@ -29,8 +30,8 @@ CAV_STAGES = ("egomotion", "separation", "clustering", "background")
 class EvalConfig:
     """matcher / aligner by name; cav: "pipeline" (CAV-side processing) or "labels" (perfect separation)."""
 
-    matcher: str = "consensus"
-    aligner: str = "anchored-icp"
+    matcher: str = DEFAULT_MATCHER
+    aligner: str = DEFAULT_ALIGNER
     cav: str = "pipeline"
 
 

@@ -25,7 +25,7 @@ def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
         p = view.points[lab == ids[b]]
         pts.append(p)
         idx.append(np.full(len(p), v, np.int32))
-        centers.append(p[:, :2].mean(0) if len(p) else _box_centre(view, b))
+        centers.append(_box_centre(view, b))
     bg = view.points[lab == -1, :3]
     ego = fit_egomotion(view.points)
     return SharedFrame(

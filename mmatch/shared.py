@@ -25,8 +25,9 @@ class SharedFrame:
     vehicle_index: int32 (K,) vehicle of each point, 0..V-1.
     vehicle_boxes: float32 (V, 6) the camera box of each vehicle (u1, v1, u2, v2, score, depth).
     vehicle_box_index: int32 (V,) index of that box in the sender's detections.
-    vehicle_centers: float32 (V, 2) x, y estimate of each vehicle (point centroid, or from
-        the box bearing and depth when it has no radar point).
+    vehicle_centers: float32 (V, 2) x, y of each vehicle centre as the camera estimates it
+        (box-centre bearing at the box depth); the radar's estimate is the centroid of the
+        vehicle's points.
     vehicle_features: float32 (V, 32) appearance descriptor per vehicle.
     background: float32 (B, 3) x, y, z of the stationary-background sketch.
     """

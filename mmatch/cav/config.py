@@ -85,6 +85,8 @@ class SeparationConfig:
     parked_keep_points: a box that is not moving (parked car, or a vehicle crossing
         the line of sight) keeps the stationary points it claims as its vehicle points; when
         False they go to the background and the vehicle is shared without points.
+    parked_min_score: only boxes scoring at least this keep stationary points as a parked
+        car; weaker boxes (where false detections live) leave them in the background.
     min_camera_z_m: points closer than this in front of the camera never project.
     """
 
@@ -99,6 +101,7 @@ class SeparationConfig:
     min_box_score: float = 0.0
     min_camera_z_m: float = 0.5
     parked_keep_points: bool = True
+    parked_min_score: float = 0.0
     moving_ratio: float = 0.5
 
 

@@ -15,7 +15,10 @@ Choices where the paper is silent (measured on simulated scenes, see the tests):
   are landmarks both vehicles see at the same place; sending them without points (the
   first version) left the Ego with box-depth centres 3-5 m off and halved the alignment
   success with true pairs on simulated mixed scenes;
-- a vehicle without points gets the centre of its box bearing at the box depth;
+- every vehicle carries the camera's centre estimate (box bearing at the box depth) beside
+  its points: a receiver weighs the two (points fix the bearing and the near face; the
+  camera depth is unbiased but 5-15 % noisy), and falls back on the camera's alone when
+  the points are wrong (another vehicle's or the background's returns in the same frustum);
 - moving points claimed by no box (ghosts, clutter, vehicles the camera missed) and moving
   points outside a vehicle's main cluster are dropped;
 - when the ego-motion fit gives no estimate (a frame with next to no stationary structure),
@@ -66,19 +69,6 @@ def _check_inputs(points, boxes, features) -> tuple[np.ndarray, np.ndarray, np.n
     if features.shape != (len(boxes), DESCRIPTOR_DIM):
         raise CavInputError(f"features: shape {features.shape} is not ({len(boxes)}, {DESCRIPTOR_DIM})")
     return points, boxes, features
-
-
-def _overwrite_centroids(centres: np.ndarray, points: np.ndarray, members: np.ndarray,
-                         owner: np.ndarray) -> None:
-    """Set centres[v] (V, 2) to the x, y centroid of the member points owned by v, where any."""
-    if len(members) == 0:
-        return
-    V = len(centres)
-    cnt = np.bincount(owner[members], minlength=V)
-    has = cnt > 0
-    for col in (0, 1):
-        s = np.bincount(owner[members], weights=points[members, col], minlength=V)
-        centres[has, col] = s[has] / cnt[has]
 
 
 @dataclass
@@ -170,7 +160,8 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     # frames keeping them cost 4-7 points of precision and gained < 0.5 point of recall)
     candidate = (owner >= 0) & ~owned_by_parked & (moving | (not ego.ok))
     if cfg.separation.parked_keep_points:
-        candidate |= owned_by_parked & ~moving
+        strong = np.append(vb[:, 4] >= cfg.separation.parked_min_score, False)
+        candidate |= owned_by_parked & ~moving & strong[owner]
     t2 = time.perf_counter()
     timings["separation"] = (t2 - t1) * 1e3
 
@@ -194,11 +185,10 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     t4 = time.perf_counter()
     timings["background"] = (t4 - t3) * 1e3
 
-    # ---- vehicle centres: point centroid, else claimed stationary points, else box bearing
+    # ---- vehicle centres: the camera's own estimate (box bearing at the box depth); the
+    # radar's is the centroid of the shared points, which the receiver computes itself
     vidx = owner[veh_idx]
     centres = centres_from_boxes(vb, camera)
-    _overwrite_centroids(centres, points, np.flatnonzero(owned_by_parked), owner)
-    _overwrite_centroids(centres, points, veh_idx, owner)
 
     frame = SharedFrame(
         sender=sender, seq=int(seq), stamp=float(stamp), radar_height=float(radar_height),

@@ -15,34 +15,44 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import (MatchContext, MatchResult, descriptor_distance, far_side_centres, heading_yaws,
-                             road_speed_consistency)
-from mmatch.ego.rigid import kabsch2d, se2_to_matrix
+from mmatch.ego.base import MatchContext, MatchResult, descriptor_distance, heading_yaws, road_speed_consistency
+from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
+from mmatch.ego.refine import RefineConfig, refine
+from mmatch.ego.rigid import se2_to_matrix
 from mmatch.shared import SharedFrame
 
 
 @dataclass(frozen=True)
 class ConsensusConfig:
-    """Gates in metres and descriptor (Hellinger, 0-1) units."""
+    """Gates in metres, Mahalanobis units (sigma) and descriptor (Hellinger, 0-1) units."""
 
     candidates_per_vehicle: int = 6      # look-alike candidates kept per vehicle
     pair_dist_tol_m: float = 2.5         # inter-vehicle distance agreement
     pair_dist_tol_rel: float = 0.06
     min_baseline_m: float = 2.0          # the two vehicles of a hypothesis must be this far apart
-    inlier_m: float = 3.5                # a vehicle lands on its partner within this
+    gate_sigma: float = 3.0              # a vehicle lands on its partner within this Mahalanobis distance
+    assign_gate_sigma: float = 2.5       # the same for the final one-to-one pairs
     desc_weight: float = 1.5             # appearance share of the assignment cost
     desc_gate: float = 0.55              # pairs less alike than this are never matched
     background_weight: float = 3.0       # background agreement, in vehicle-match units
     background_gate_m: float = 1.0
     background_points: int = 150         # background points used for scoring
-    top_hypotheses: int = 40             # hypotheses that get the background score
+    refine_hypotheses: int = 12          # best coarse hypotheses refined and rescored
+    distinct_m: float = 1.5              # hypotheses closer than this (and distinct_deg) count as one
+    distinct_deg: float = 3.0
     yaw_gate_deg: float = 10.0           # hypotheses this far from every velocity-heading yaw are dropped
     camera_half_fov_deg: float = 30.0    # where a vehicle is expected to be detected by the other camera
     camera_range_m: float = 70.0
     miss_weight: float = 0.1             # per vehicle that the other camera should see but did not
     sighting_weight: float = 1.0         # the other vehicle itself found where the hypothesis puts it
+    sighting_m: float = 3.5
     body_offset_m: float = 2.3           # radar (front bumper) to vehicle centre
     speed_weight: float = 0.5            # road-speed agreement (+1 / 0 / -1) in likeness units
+    score_low: float = 0.3               # detection scores map to confidence 0 ... 1 between these
+    score_high: float = 0.8
+    min_confidence: float = 0.25
+    observation: ObservationModel = ObservationModel()
+    refine: RefineConfig = RefineConfig()
 
 
 class ConsensusMatcher:
@@ -53,40 +63,92 @@ class ConsensusMatcher:
 
     def __call__(self, own: SharedFrame, other: SharedFrame, ctx: MatchContext) -> MatchResult:
         cfg = self.cfg
-        A, B = far_side_centres(own), far_side_centres(other)
-        if len(A) == 0 or len(B) == 0:
+        A, B = observe(own, cfg.observation), observe(other, cfg.observation)
+        if len(A.centres) == 0 or len(B.centres) == 0:
             return MatchResult()
         D = descriptor_distance(own.vehicle_features, other.vehicle_features)
         cand = _candidates(D, cfg.candidates_per_vehicle, cfg.desc_gate)
-        hyps = _pair_hypotheses(A, B, cand, cfg)
-        if len(hyps[0]) == 0:
-            return MatchResult()
-        R, t = hyps
         yaws = heading_yaws(own, other)
+        R, t = _pair_hypotheses(A.centres, B.centres, cand, cfg)
+        if yaws is not None and len(cand):
+            R1, t1 = _single_pair_hypotheses(A.centres, B.centres, cand, yaws)
+            R, t = np.concatenate([R, R1]), np.concatenate([t, t1])
+        if len(R) == 0:
+            return MatchResult()
         speed = road_speed_consistency(own, other)
-        m_idx = None
+        alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg))
         if yaws is not None:
-            gap = np.abs((np.arctan2(R[:, 1, 0], R[:, 0, 0])[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi)
-            keep = gap.min(axis=1) < np.radians(cfg.yaw_gate_deg)
+            keep = _yaw_gap(R, yaws) < np.radians(cfg.yaw_gate_deg)
             if keep.any():
-                R, t, gap = R[keep], t[keep], gap[keep]
-            m_idx = gap.argmin(axis=1)
-        alike = np.clip(1 - D / cfg.desc_gate, 0, None)[None]
-        if speed is not None and m_idx is not None:
-            alike = alike + cfg.speed_weight * speed[m_idx]
-        veh_score = _vehicle_scores(A, B, alike, R, t, cfg)
-        top = np.argsort(-veh_score)[: cfg.top_hypotheses]
-        bg = _background_scores(own.background, other.background, R[top], t[top], cfg)
-        total = veh_score[top] + cfg.background_weight * bg
-        best = top[int(np.argmax(total))]
-        R_b, t_b = R[best], t[best]
-        veto = speed[m_idx[best]] < 0 if speed is not None and m_idx is not None else None
+                R, t = R[keep], t[keep]
+        veh_score = _vehicle_scores(A, B, alike_of(R), R, t, cfg)
+        top = _distinct_best(R, t, veh_score, cfg)
+        bg_own, bg_other = own.background[:, :2], other.background[:, :2]
+        tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
+        refined = [refine(A, B, D, bg_own, bg_other, R[h], t[h], yaws, cfg.refine, tree) for h in top]
+        Rr = np.concatenate([R[top], np.stack([r for r, _ in refined])])
+        tr = np.concatenate([t[top], np.stack([x for _, x in refined])])
+        total = _vehicle_scores(A, B, alike_of(Rr), Rr, tr, cfg) \
+            + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
+        best = int(np.argmax(total))
+        R_b, t_b = Rr[best], tr[best]
+        veto = None
+        if speed is not None and yaws is not None:
+            veto = speed[int(np.argmin(_yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
         pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto)
-        if len(pairs) >= 2:
-            R_b, t_b = kabsch2d(B[pairs[:, 1]], A[pairs[:, 0]])
-            pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto)
         T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
         return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T)
+
+
+def _yaw_gap(R: np.ndarray, yaws: np.ndarray, per_candidate: bool = False) -> np.ndarray:
+    """Angular distance (rad) of each hypothesis' yaw to the prior yaws: (H,) nearest, or (H, 4)."""
+    gap = np.abs((np.arctan2(R[:, 1, 0], R[:, 0, 0])[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi)
+    return gap if per_candidate else gap.min(axis=1)
+
+
+def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
+    """(V,) 0-1 trust in each vehicle from its detection score (false detections score low)."""
+    c = (frame.vehicle_boxes[:, 4].astype(float) - cfg.score_low) / (cfg.score_high - cfg.score_low)
+    return np.clip(c, cfg.min_confidence, 1.0)
+
+
+def _likeness(D, yaws, speed, cfg, conf_a, conf_b):
+    """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair."""
+    alike = np.clip(1 - D / cfg.desc_gate, 0, None)[None]
+    conf = np.sqrt(conf_a[:, None] * conf_b[None, :])[None]
+
+    def of(R: np.ndarray) -> np.ndarray:
+        a = alike if speed is None or yaws is None else \
+            alike + cfg.speed_weight * speed[_yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)]
+        return (0.5 + a) * conf - 0.5
+    return of
+
+
+def _single_pair_hypotheses(A, B, cand, yaws):
+    """Transforms from one candidate pair placed under each heading-prior yaw: (C*4, 2, 2), (C*4, 2)."""
+    c, s = np.cos(yaws), np.sin(yaws)
+    Rk = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], 1)             # (4, 2, 2)
+    R = np.repeat(Rk[None], len(cand), 0).reshape(-1, 2, 2)
+    Bj = np.repeat(B[cand[:, 1]], len(yaws), 0)
+    t = np.repeat(A[cand[:, 0]], len(yaws), 0) - np.einsum("hij,hj->hi", R, Bj)
+    return R, t
+
+
+def _distinct_best(R, t, score, cfg):
+    """Indices of the best `refine_hypotheses` hypotheses, skipping near-duplicates of better ones."""
+    order = np.argsort(-score)
+    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    chosen: list[int] = []
+    for h in order:
+        if len(chosen) >= cfg.refine_hypotheses:
+            break
+        if chosen:
+            c = np.asarray(chosen)
+            dy = np.abs((yaw[c] - yaw[h] + np.pi) % (2 * np.pi) - np.pi)
+            if np.any((np.linalg.norm(t[c] - t[h], axis=1) < cfg.distinct_m) & (dy < np.radians(cfg.distinct_deg))):
+                continue
+        chosen.append(int(h))
+    return np.asarray(chosen, int)
 
 
 def _candidates(D: np.ndarray, k: int, gate: float) -> np.ndarray:
@@ -131,26 +193,36 @@ def _in_view(p: np.ndarray, cfg: ConsensusConfig) -> np.ndarray:
     return (r > 4.0) & (r < cfg.camera_range_m) & (az < np.radians(cfg.camera_half_fov_deg))
 
 
-def _vehicle_scores(A, B, alike, R, t, cfg):
+def _vehicle_scores(A: Observations, B: Observations, alike, R, t, cfg):
     """(H,) evidence for each hypothesis from the vehicles alone.
 
-    + each Ego vehicle landing near a look-alike CAV vehicle (closeness x likeness);
+    + each own vehicle landing near a look-alike other vehicle (closeness in Mahalanobis
+      units x likeness);
     - each vehicle the other camera should have seen, unmatched (misses cost less than
       wrong matches: occlusion hides some);
     + the other vehicle itself among the detections where the hypothesis puts it.
     """
-    Bt = np.einsum("hij,vj->hvi", R, B) + t[:, None]               # (H, Vb, 2) CAV vehicles in Ego frame
-    dist = np.linalg.norm(A[None, :, None] - Bt[:, None], axis=3)   # (H, Va, Vb)
-    close = np.clip(1 - dist / cfg.inlier_m, 0, None)
+    out = np.empty(len(R))
+    for lo in range(0, len(R), 512):                                  # bounded memory
+        sl = slice(lo, lo + 512)
+        out[sl] = _vehicle_scores_chunk(A, B, alike if len(alike) == 1 else alike[sl], R[sl], t[sl], cfg)
+    return out
+
+
+def _vehicle_scores_chunk(A, B, alike, R, t, cfg):
+    dist = mahalanobis(A, B, R, t)                                     # (H, Va, Vb)
+    close = np.clip(1 - dist / cfg.gate_sigma, 0, None)
     score = (close * np.clip(0.5 + alike, 0, None)).max(axis=2).sum(axis=1)
+    Ac, Bc = A.centres, B.centres
+    Bt = np.einsum("hij,vj->hvi", R, Bc) + t[:, None]                  # (H, Vb, 2) other vehicles, own frame
     body = np.array([0.0, -cfg.body_offset_m])
-    cav_body = np.einsum("hij,j->hi", R, body) + t                  # (H, 2) CAV centre in Ego frame
-    A_in_cav = np.einsum("hji,hvj->hvi", R, A[None] - t[:, None])  # (H, Va, 2) Ego vehicles in CAV frame
-    ego_body_in_cav = np.einsum("hji,hj->hi", R, body[None] - t)    # (H, 2)
-    a_is_cav = np.linalg.norm(A[None] - cav_body[:, None], axis=2) < cfg.inlier_m
-    b_is_ego = np.linalg.norm(Bt - body, axis=2) < cfg.inlier_m
-    a_unpaired = dist.min(axis=2) > cfg.inlier_m
-    b_unpaired = dist.min(axis=1) > cfg.inlier_m
+    cav_body = np.einsum("hij,j->hi", R, body) + t                     # (H, 2) other vehicle's centre, own frame
+    A_in_cav = np.einsum("hji,hvj->hvi", R, Ac[None] - t[:, None])     # (H, Va, 2) own vehicles, other frame
+    ego_body_in_cav = np.einsum("hji,hj->hi", R, body[None] - t)       # (H, 2)
+    a_is_cav = np.linalg.norm(Ac[None] - cav_body[:, None], axis=2) < cfg.sighting_m
+    b_is_ego = np.linalg.norm(Bt - body, axis=2) < cfg.sighting_m
+    a_unpaired = dist.min(axis=2) > cfg.gate_sigma
+    b_unpaired = dist.min(axis=1) > cfg.gate_sigma
     miss = (a_unpaired & _in_view(A_in_cav, cfg) & ~a_is_cav).sum(1) \
         + (b_unpaired & _in_view(Bt, cfg) & ~b_is_ego).sum(1)
     seen = a_is_cav.any(1).astype(float) * _in_view(cav_body, cfg) \
@@ -158,27 +230,26 @@ def _vehicle_scores(A, B, alike, R, t, cfg):
     return score - cfg.miss_weight * miss + cfg.sighting_weight * seen
 
 
-def _background_scores(bg_own, bg_other, R, t, cfg):
-    """(H,) share of the CAV's background landing within the gate of the Ego's."""
+def _background_scores(bg_own, bg_other, R, t, cfg, tree=None):
+    """(H,) share of the other view's background (N, 2) landing within the gate of the own."""
     if len(bg_own) < 3 or len(bg_other) < 3:
         return np.zeros(len(R))
     rng = np.random.default_rng(0)
-    src = bg_other[:, :2]
+    src = bg_other
     if len(src) > cfg.background_points:
         src = src[rng.choice(len(src), cfg.background_points, replace=False)]
-    tree = cKDTree(bg_own[:, :2])
+    tree = tree or cKDTree(bg_own)
     moved = np.einsum("hij,nj->hni", R, src) + t[:, None]
     d, _ = tree.query(moved.reshape(-1, 2), distance_upper_bound=cfg.background_gate_m)
     return np.isfinite(d).reshape(len(R), -1).mean(axis=1)
 
 
-def _assign(A, B, D, R, t, cfg, veto=None):
-    """One-to-one pairs under a transform: Hungarian on distance + appearance, gated (and vetoed)."""
-    Bt = B @ R.T + t
-    dist = np.linalg.norm(A[:, None] - Bt[None], axis=2)
-    cost = dist / cfg.inlier_m + cfg.desc_weight * D
+def _assign(A: Observations, B: Observations, D, R, t, cfg, veto=None):
+    """One-to-one pairs under a transform: Hungarian on Mahalanobis distance + appearance, gated (and vetoed)."""
+    dist = mahalanobis(A, B, R[None], t[None])[0]
+    cost = dist / cfg.assign_gate_sigma + cfg.desc_weight * D
     big = 1e6
-    allowed = (dist < cfg.inlier_m) & (D < cfg.desc_gate)
+    allowed = (dist < cfg.assign_gate_sigma) & (D < cfg.desc_gate)
     if veto is not None:
         allowed &= ~veto
     gated = np.where(allowed, cost, big)

@@ -13,9 +13,10 @@ MATCHERS: dict[str, str] = {
 ALIGNERS: dict[str, str] = {
     "centroid-icp": "mmatch.ego.align_centroid_icp:CentroidICPAligner",
     "anchored-icp": "mmatch.ego.align_anchored:AnchoredICPAligner",
+    "constrained": "mmatch.ego.align_constrained:ConstrainedAligner",
 }
 DEFAULT_MATCHER = "consensus"
-DEFAULT_ALIGNER = "anchored-icp"
+DEFAULT_ALIGNER = "constrained"
 
 
 def _load(table: dict[str, str], kind: str, name: str):

@@ -1,0 +1,120 @@
+"""Line-of-sight covariances, two-estimate distances and the Gauss-Newton refinement."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mmatch.ego.base import MatchContext
+from mmatch.ego.observations import ObservationModel, mahalanobis, observe
+from mmatch.ego.refine import refine
+from mmatch.ego.registry import get_aligner, get_matcher
+from mmatch.label_frames import shared_from_labels
+from mmatch.metrics import pair_counts, rre_deg, rte_m
+from mmatch.scene_io import load_scene
+from mmatch.shared import SharedFrame
+
+
+def _rot(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+
+def _frame(centres_pts: list, cams: np.ndarray, bg: np.ndarray | None = None) -> SharedFrame:
+    """Vehicles with one radar point each at `centres_pts` (None: no point), camera centres `cams`."""
+    pts, idx = [], []
+    for v, c in enumerate(centres_pts):
+        if c is not None:
+            pts.append([c[0], c[1], 0.0, 0.0, 10.0])
+            idx.append(v)
+    V = len(cams)
+    return SharedFrame("x", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 10.0]),
+                       vehicle_points=np.array(pts, np.float32).reshape(-1, 5),
+                       vehicle_index=np.array(idx, np.int32),
+                       vehicle_boxes=np.tile(np.array([0, 0, 10, 10, 0.9, 20], np.float32), (V, 1)),
+                       vehicle_box_index=np.arange(V, dtype=np.int32),
+                       vehicle_centers=np.asarray(cams, np.float32).reshape(-1, 2),
+                       vehicle_features=np.full((V, 32), 1 / 16, np.float32),
+                       background=np.zeros((0, 3), np.float32) if bg is None else bg.astype(np.float32))
+
+
+def test_covariance_is_long_along_the_line_of_sight():
+    m = ObservationModel()
+    obs = observe(_frame([[0.0, 30.0], None], np.array([[0.0, 31.0], [30.0, 0.0]])), m)
+    w, v = np.linalg.eigh(obs.cov[0])                  # vehicle with points, straight ahead
+    assert np.sqrt(w[1]) == pytest.approx(m.along_points_m) and abs(v[1, 1]) == pytest.approx(1.0)
+    assert np.sqrt(w[0]) == pytest.approx(m.across_m + m.across_rad * 31.4, rel=1e-3)
+    w, v = np.linalg.eigh(obs.cov[1])                  # camera only, to the right: depth error
+    assert np.sqrt(w[1]) == pytest.approx(m.along_depth_m + m.along_depth_rel * 30.0)
+    assert abs(v[0, 1]) == pytest.approx(1.0)
+    assert obs.cam_penalty.tolist() == [m.camera_penalty, 0.0]
+
+
+def test_two_end_on_views_from_crossing_directions_agree_only_where_their_rays_cross():
+    # a bus at (10, 30) in the Ego frame; the Ego sees its near face 4.4 m short along its
+    # ray (3 m after the far-side correction); the CAV (turned 90 deg, 20 m to the right)
+    # sees its own near face as far short
+    truth = np.array([10.0, 30.0])
+    T_R, T_t = _rot(90), np.array([20.0, 10.0])
+    in_cav = _rot(90).T @ (truth - T_t)
+    near_own = truth - 4.4 * truth / np.linalg.norm(truth)
+    near_cav = in_cav - 4.4 * in_cav / np.linalg.norm(in_cav)
+    A = observe(_frame([near_own], truth[None]))
+    B = observe(_frame([near_cav], in_cav[None]))
+    right = mahalanobis(A, B, T_R[None], T_t[None])[0, 0, 0]
+    iso = np.linalg.norm(A.centres[0] - (T_R @ B.centres[0] + T_t))
+    assert iso > 2.0 and right < 2.0                    # isotropically 2+ m apart, yet consistent
+    print(f"\nend-on views: {iso:.2f} m apart, Mahalanobis {right:.2f}")
+    wrong = mahalanobis(A, B, T_R[None], (T_t + T_R @ [0.0, 0.0] + np.array([4.0, -4.0]))[None])[0, 0, 0]
+    assert wrong > 2.5                                   # beyond the pair gate: a 5.7 m shift is not
+
+
+def test_the_camera_estimate_rescues_a_vehicle_with_wrong_points():
+    truth = np.array([0.0, 40.0])
+    A = observe(_frame([truth + [0, 12.0]], truth[None]))      # points of the car 12 m behind it
+    B = observe(_frame([truth - [0, 1.4]], truth[None] + [0, 1.0]))
+    d, mode = mahalanobis(A, B, np.eye(2)[None], np.zeros((1, 2)), with_modes=True)
+    assert d[0, 0, 0] < 2.0 and mode[0, 0, 0] == 2          # own camera estimate, other's points
+    off = observe(_frame([truth + [6.0, 12.0]], truth[None] + [10.0, 0.0]))   # both off across the ray
+    assert mahalanobis(off, B, np.eye(2)[None], np.zeros((1, 2)))[0, 0, 0] > 3.0
+
+
+def test_refinement_pulls_a_rough_start_onto_vehicles_background_and_heading():
+    rng = np.random.default_rng(3)
+    T_R, T_t = _rot(30), np.array([5.0, 25.0])
+    cars = rng.uniform([-20, 15], [20, 60], (5, 2))
+    wall = np.column_stack([np.full(120, -12.0), np.linspace(0, 80, 120)])
+    wall2 = np.column_stack([np.linspace(-12, 20, 60), np.full(60, 70.0)])
+    bg = np.vstack([wall, wall2])
+    to_cav = lambda p: (p - T_t) @ T_R           # noqa: E731  (R^T (p - t), row-wise)
+    own = _frame(list(cars), cars, np.c_[bg, np.zeros(len(bg))])
+    oth_cars = to_cav(cars) + rng.normal(0, 0.3, cars.shape)
+    other = _frame(list(oth_cars), oth_cars, np.c_[to_cav(bg), np.zeros(len(bg))])
+    A, B = observe(own), observe(other)
+    D = np.zeros((5, 5))
+    R, t = refine(A, B, D, own.background[:, :2], other.background[:, :2], _rot(34), T_t + [2.0, -1.5],
+                  yaws=np.radians([30.0, 120.0, 210.0, 300.0]))
+    assert abs(np.degrees(np.arctan2(R[1, 0], R[0, 0])) - 30) < 0.5
+    assert np.linalg.norm(t - T_t) < 0.6
+
+
+def test_constrained_aligner_beats_anchored_icp_with_true_pairs(hard_dir):
+    """Oracle pairs on label frames: the one least-squares fit aligns more scenes than ICP."""
+    oracle, consensus = get_matcher("oracle"), get_matcher("consensus")
+    ok = {"constrained": 0, "anchored-icp": 0}
+    tp = pred = gt = 0
+    files = sorted(hard_dir.glob("*.npz"))
+    for f in files:
+        s = load_scene(f)
+        own, other = shared_from_labels(s.ego, "ego"), shared_from_labels(s.cav, "cav")
+        o = oracle(own, other, MatchContext(s.gt_pairs))
+        for name in ok:
+            res = get_aligner(name)(own, other, o)
+            ok[name] += res.T is not None and rre_deg(s.gt_T_ego_cav, res.T) < 5 and rte_m(s.gt_T_ego_cav, res.T) < 2
+        m = consensus(own, other, MatchContext())
+        boxes = np.column_stack([own.vehicle_box_index[m.pairs[:, 0]], other.vehicle_box_index[m.pairs[:, 1]]])
+        a, b, c = pair_counts(boxes, s.gt_pairs)
+        tp, pred, gt = tp + a, pred + b, gt + c
+    print(f"\n{len(files)} hard label scenes, oracle pairs: success {ok}; consensus P {tp / pred:.2f} R {tp / gt:.2f}")
+    assert ok["constrained"] >= ok["anchored-icp"] and ok["constrained"] / len(files) > 0.5
+    assert tp / pred > 0.7 and tp / gt > 0.7
