@@ -85,9 +85,11 @@ class SeparationConfig:
     parked_keep_points: a box that is not moving (parked car, or a vehicle crossing
         the line of sight) keeps the stationary points it claims as its vehicle points; when
         False they go to the background and the vehicle is shared without points.
-    parked_min_score: only boxes scoring at least this keep stationary points as a parked
-        car; weaker boxes (where false detections live) leave them in the background.
     min_camera_z_m: points closer than this in front of the camera never project.
+    grow_eps_m / grow_velocity_scale_s / grow_margin_deg: an unclaimed moving point within
+        grow_eps_m (in x, y, scale * Doppler residual) of a box's moving point, and within
+        grow_margin_deg of that box's columns and its depth window, joins that box (radar
+        azimuth noise pushes returns just outside the wedge); 0 turns it off.
     """
 
     delta_d_m: float = 3.0
@@ -101,8 +103,10 @@ class SeparationConfig:
     min_box_score: float = 0.0
     min_camera_z_m: float = 0.5
     parked_keep_points: bool = True
-    parked_min_score: float = 0.0
     moving_ratio: float = 0.5
+    grow_eps_m: float = 3.0
+    grow_velocity_scale_s: float = 1.0
+    grow_margin_deg: float = 2.0
 
 
 @dataclass(frozen=True)

@@ -138,3 +138,36 @@ def separate(points: np.ndarray, moving: np.ndarray, boxes: np.ndarray, camera: 
     claimed = np.bincount(owner[mine], minlength=m).astype(np.int32)
     claimed_moving = np.bincount(owner[mine & moving], minlength=m).astype(np.int32)
     return Separation(owner=owner, claimed=claimed, claimed_moving=claimed_moving, active=active)
+
+
+def grow(points: np.ndarray, residual: np.ndarray, moving: np.ndarray, owner: np.ndarray, boxes: np.ndarray,
+         camera: CameraModel, proj: Projection, config: SeparationConfig | None = None) -> np.ndarray:
+    """Owner (N,) with unclaimed moving points adopted by the box whose moving points they touch.
+
+    Radar azimuth noise (0.3-2.5 deg, worst off boresight) puts some returns of a vehicle
+    just outside its box's wedge. An unclaimed moving point joins box b when it lies within
+    grow_eps_m of one of b's moving points in (x, y, velocity_scale * residual), its
+    column is within grow_margin_deg of the box, and its range is inside the box's moving
+    depth window. Claimed points never change hands.
+    """
+    cfg = config or SeparationConfig()
+    owner = owner.copy()
+    if cfg.grow_eps_m <= 0 or len(boxes) == 0:
+        return owner
+    seeds = np.flatnonzero((owner >= 0) & moving)
+    cand = np.flatnonzero((owner < 0) & moving & proj.front)
+    if len(seeds) == 0 or len(cand) == 0:
+        return owner
+    feat = np.column_stack([points[:, 0], points[:, 1], cfg.grow_velocity_scale_s * residual])
+    d = np.linalg.norm(feat[cand, None] - feat[None, seeds], axis=2)          # (C, S)
+    j = d.argmin(axis=1)
+    b = owner[seeds[j]]
+    bx = np.asarray(boxes, np.float64)[b]
+    fx = float(camera.K[0, 0])
+    u = proj.uv[cand, 0]
+    off = np.maximum(np.maximum(bx[:, 0] - u, u - bx[:, 2]), 0.0)
+    ok = (d[np.arange(len(cand)), j] <= cfg.grow_eps_m) \
+        & (off <= fx * np.tan(np.radians(cfg.grow_margin_deg))) \
+        & (np.abs(proj.bev_range[cand] - bx[:, 5]) <= cfg.delta_d_m + cfg.moving_depth_rel * bx[:, 5])
+    owner[cand[ok]] = b[ok]
+    return owner

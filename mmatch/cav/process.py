@@ -38,7 +38,7 @@ from mmatch.cav import background as bg
 from mmatch.cav.clustering import main_clusters
 from mmatch.cav.config import CavConfig
 from mmatch.cav.egomotion import EgoMotion, fit_egomotion
-from mmatch.cav.frustum import centres_from_boxes, project, separate
+from mmatch.cav.frustum import centres_from_boxes, grow, project, separate
 from mmatch.errors import MMatchError
 from mmatch.shared import SharedFrame
 from mmatch.types import DESCRIPTOR_DIM, CameraModel
@@ -147,6 +147,8 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
     sep = separate(points, moving, vb, camera, cfg.separation, proj)
     owner = sep.owner                                         # vehicle index or -1
+    if proj is not None:
+        owner = grow(points, ego.residual, moving, owner, vb, camera, proj, cfg.separation)
     n_mov = sep.claimed_moving
     # moving: some moving points, and not a lone ghost among a parked car's many returns.
     # Without an ego-motion estimate nothing is known to move: every box keeps its points.
@@ -160,8 +162,7 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     # frames keeping them cost 4-7 points of precision and gained < 0.5 point of recall)
     candidate = (owner >= 0) & ~owned_by_parked & (moving | (not ego.ok))
     if cfg.separation.parked_keep_points:
-        strong = np.append(vb[:, 4] >= cfg.separation.parked_min_score, False)
-        candidate |= owned_by_parked & ~moving & strong[owner]
+        candidate |= owned_by_parked & ~moving
     t2 = time.perf_counter()
     timings["separation"] = (t2 - t1) * 1e3
 

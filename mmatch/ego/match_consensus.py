@@ -34,8 +34,15 @@ class ConsensusConfig:
     assign_gate_sigma: float = 2.5       # the same for the final one-to-one pairs
     desc_weight: float = 1.5             # appearance share of the assignment cost
     desc_gate: float = 0.55              # pairs less alike than this are never matched
+    desc_mid: float = 0.30               # descriptor distance where a pair is as likely the same as not
+    desc_width: float = 0.1              # > 0: logistic likeness around desc_mid (else linear to the gate)
     background_weight: float = 3.0       # background agreement, in vehicle-match units
     background_gate_m: float = 1.0
+    background_sigma_m: float = 0.0      # > 0: soft agreement exp(-d^2 / 2 sigma^2) instead of a hit
+    background_in_view: bool = False     # share among the points the own radar can see
+    background_min_seen: int = 10
+    radar_half_fov_deg: float = 65.0
+    radar_range_m: float = 100.0
     background_points: int = 150         # background points used for scoring
     refine_hypotheses: int = 12          # best coarse hypotheses refined and rescored
     distinct_m: float = 1.5              # hypotheses closer than this (and distinct_deg) count as one
@@ -114,7 +121,10 @@ def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
 
 def _likeness(D, yaws, speed, cfg, conf_a, conf_b):
     """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair."""
-    alike = np.clip(1 - D / cfg.desc_gate, 0, None)[None]
+    if cfg.desc_width > 0:   # likelihood-shaped: about 2 when clearly alike, 0 when clearly not
+        alike = (2.0 / (1.0 + np.exp((D - cfg.desc_mid) / cfg.desc_width)) - 0.5)[None]
+    else:
+        alike = np.clip(1 - D / cfg.desc_gate, 0, None)[None]
     conf = np.sqrt(conf_a[:, None] * conf_b[None, :])[None]
 
     def of(R: np.ndarray) -> np.ndarray:
@@ -241,7 +251,14 @@ def _background_scores(bg_own, bg_other, R, t, cfg, tree=None):
     tree = tree or cKDTree(bg_own)
     moved = np.einsum("hij,nj->hni", R, src) + t[:, None]
     d, _ = tree.query(moved.reshape(-1, 2), distance_upper_bound=cfg.background_gate_m)
-    return np.isfinite(d).reshape(len(R), -1).mean(axis=1)
+    d = d.reshape(len(R), -1)
+    hit = np.exp(-0.5 * (d / cfg.background_sigma_m) ** 2) if cfg.background_sigma_m > 0 else np.isfinite(d)
+    if not cfg.background_in_view:
+        return hit.mean(axis=1)
+    r = np.linalg.norm(moved, axis=2)
+    seen = (np.abs(np.arctan2(moved[..., 0], moved[..., 1])) < np.radians(cfg.radar_half_fov_deg)) \
+        & (r < cfg.radar_range_m)
+    return (hit * seen).sum(axis=1) / np.maximum(seen.sum(axis=1), cfg.background_min_seen)
 
 
 def _assign(A: Observations, B: Observations, D, R, t, cfg, veto=None):

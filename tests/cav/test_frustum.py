@@ -90,3 +90,23 @@ def test_centre_from_box_bearing_and_depth():
         box[5] = np.hypot(x - cam_xy[0], y - cam_xy[1])
         np.testing.assert_allclose(centres_from_boxes(box[None], CAM)[0], [x, y], atol=0.05)
     assert centres_from_boxes(np.zeros((0, 6)), CAM).shape == (0, 2)
+
+
+def test_grow_adopts_a_vehicle_return_pushed_just_outside_its_wedge():
+    from mmatch.cav.frustum import grow
+
+    cfg = SeparationConfig(grow_eps_m=3.0, grow_margin_deg=2.0)
+    box = box_around(0.0, 30.0, half_w=1.0)
+    # two returns inside the wedge; one 1.6 m to the side (3 deg: azimuth noise); one far
+    # off to the side; one in reach but of another speed; one stationary
+    pts = np.array([[0.3, 29.0, 0.0], [-0.4, 29.5, 0.0], [1.9, 29.6, 0.0], [9.0, 30.0, 0.0],
+                    [1.9, 29.6, 0.0], [1.8, 29.0, 0.0]])
+    residual = np.array([-5.0, -5.1, -5.2, -5.0, 3.0, 0.0])
+    moving = np.array([True, True, True, True, True, False])
+    sep = separate(np.c_[pts, residual, np.full(6, 10.0)], moving, box[None], CAM, cfg)
+    assert sep.owner.tolist() == [0, 0, -1, -1, -1, -1]
+    owner = grow(pts, residual, moving, sep.owner, box[None], CAM, project(pts, CAM), cfg)
+    assert owner.tolist() == [0, 0, 0, -1, -1, -1]
+    # off: nothing changes
+    off = grow(pts, residual, moving, sep.owner, box[None], CAM, project(pts, CAM), SeparationConfig(grow_eps_m=0.0))
+    assert off.tolist() == sep.owner.tolist()
