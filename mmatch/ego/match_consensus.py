@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 
 from mmatch.ego.base import MatchContext, MatchResult, descriptor_distance, heading_yaws, road_speed_consistency
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
-from mmatch.ego.refine import RefineConfig, refine
+from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.shared import SharedFrame
 
@@ -92,9 +92,8 @@ class ConsensusMatcher:
         top = _distinct_best(R, t, veh_score, cfg)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
-        refined = [refine(A, B, D, bg_own, bg_other, R[h], t[h], yaws, cfg.refine, tree) for h in top]
-        Rr = np.concatenate([R[top], np.stack([r for r, _ in refined])])
-        tr = np.concatenate([t[top], np.stack([x for _, x in refined])])
+        R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, cfg.refine, tree)
+        Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
         total = _vehicle_scores(A, B, alike_of(Rr), Rr, tr, cfg) \
             + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
         best = int(np.argmax(total))

@@ -34,9 +34,9 @@ class RefineConfig:
     heading_gate_deg: float = 10.0
 
 
-def _rot(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s], [s, c]])
+def _rots(yaw: np.ndarray) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
 
 
 def refine(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndarray, bg_other: np.ndarray,
@@ -48,58 +48,96 @@ def refine(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndarray, 
     yaws: candidate yaws from the heading prior (rad) or None; allowed: (Va, Vb) pairs that
     may be used (None: all).
     """
-    yaw = float(np.arctan2(R[1, 0], R[0, 0]))
+    Rs, ts = refine_many(A, B, D, bg_own, bg_other, np.asarray(R)[None], np.asarray(t, float)[None], yaws,
+                         cfg, tree, allowed)
+    return Rs[0], ts[0]
+
+
+def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndarray, bg_other: np.ndarray,
+                R: np.ndarray, t: np.ndarray, yaws: np.ndarray | None, cfg: RefineConfig = RefineConfig(),
+                tree: cKDTree | None = None, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """`refine` for H hypotheses at once: R (H, 2, 2), t (H, 2) -> refined R, t (same shapes)."""
+    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0]).astype(float)
     t = np.asarray(t, float).copy()
+    H_n = len(yaw)
+    if H_n == 0:
+        return R, t
     if tree is None and len(bg_own) >= 3:
         tree = cKDTree(bg_own)
     ok_pair = D < cfg.desc_gate if allowed is None else allowed & (D < cfg.desc_gate)
+    use_bg = tree is not None and len(bg_other) >= 3
+    active = np.ones(H_n, bool)
+    if len(A.centres) and len(B.centres):
+        CA = np.stack([A.centres, A.cam_centres])                 # (2, Va, 2): best, camera
+        SA = np.stack([A.cov, A.cam_cov])
+        CB = np.stack([B.centres, B.cam_centres])
+        SB = np.stack([B.cov, B.cam_cov])
     for it in range(cfg.iterations):
-        Rm = _rot(yaw)
-        H = np.zeros((3, 3))
-        g = np.zeros(3)
-        # vehicles: mutual nearest pairs under the current transform
+        Rm = _rots(yaw)                                           # (H, 2, 2)
+        Hm = np.zeros((H_n, 3, 3))
+        g = np.zeros((H_n, 3))
         if len(A.centres) and len(B.centres):
-            dm, mode = mahalanobis(A, B, Rm[None], t[None], with_modes=True)
-            dm, mode = np.where(ok_pair, dm[0], np.inf), mode[0]
-            i = np.arange(len(A.centres))
-            j = dm.argmin(axis=1)
-            mutual = (dm.argmin(axis=0)[j] == i) & (dm[i, j] < cfg.vehicle_gate)
-            ma, mb = A.modes(), B.modes()
-            for a, b in zip(i[mutual], j[mutual]):
-                (ca, Sa, _), (cb, Sb, _) = ma[mode[a, b] // 2], mb[mode[a, b] % 2]
-                pb = cb[b]
-                r = ca[a] - (Rm @ pb + t)
-                J = np.column_stack([-(Rm @ np.array([-pb[1], pb[0]])), -np.eye(2)])   # (2, 3)
-                W = np.linalg.inv(Sa[a] + Rm @ Sb[b] @ Rm.T)
-                H += J.T @ W @ J
-                g += J.T @ W @ r
-        # background: trimmed nearest neighbours within a shrinking gate
-        if tree is not None and len(bg_other) >= 3:
+            dm, mode = mahalanobis(A, B, Rm, t, with_modes=True)
+            dm = np.where(ok_pair[None], dm, np.inf)
+            j = dm.argmin(axis=2)                                 # (H, Va)
+            i = np.broadcast_to(np.arange(dm.shape[1]), j.shape)
+            hh = np.broadcast_to(np.arange(H_n)[:, None], j.shape)
+            back = dm.argmin(axis=1)                              # (H, Vb)
+            mutual = (np.take_along_axis(back, j, axis=1) == i) & (dm[hh, i, j] < cfg.vehicle_gate)
+            h_, a_, b_ = hh[mutual], i[mutual], j[mutual]
+            if len(h_):
+                m_ = mode[h_, a_, b_]
+                ca, Sa = CA[m_ // 2, a_], SA[m_ // 2, a_]
+                cb, Sb = CB[m_ % 2, b_], SB[m_ % 2, b_]
+                Rk = Rm[h_]
+                r = ca - (np.einsum("kij,kj->ki", Rk, cb) + t[h_])
+                dr = -np.einsum("kij,kj->ki", Rk, np.column_stack([-cb[:, 1], cb[:, 0]]))
+                J = np.concatenate([dr[:, :, None], np.broadcast_to(-np.eye(2), (len(h_), 2, 2))], axis=2)
+                S = Sa + np.einsum("kij,kjl,kml->kim", Rk, Sb, Rk)
+                W = np.linalg.inv(S)
+                np.add.at(Hm, h_, np.einsum("kji,kjl,klm->kim", J, W, J))
+                np.add.at(g, h_, np.einsum("kji,kjl,kl->ki", J, W, r))
+        if use_bg:
             gate = cfg.bg_gate_start_m + (cfg.bg_gate_end_m - cfg.bg_gate_start_m) * it / max(cfg.iterations - 1, 1)
-            moved = bg_other @ Rm.T + t
-            d, k = tree.query(moved, distance_upper_bound=gate)
+            moved = np.einsum("hij,nj->hni", Rm, bg_other) + t[:, None]          # (H, N, 2)
+            d, k = tree.query(moved.reshape(-1, 2), distance_upper_bound=gate)
+            d, k = d.reshape(H_n, -1), k.reshape(H_n, -1)
             ok = np.isfinite(d)
-            if ok.sum() >= 3:
-                ok &= d <= np.quantile(d[ok], cfg.bg_trim)
-                src, r = bg_other[ok], tree.data[k[ok]] - moved[ok]
-                w = cfg.bg_weight_total / max(len(bg_other), 1) / cfg.bg_sigma_m ** 2
-                perp = -(np.column_stack([-src[:, 1], src[:, 0]]) @ Rm.T)               # d r / d yaw
-                Jt = np.column_stack([perp[:, 0], -np.ones(len(src)), np.zeros(len(src))])
-                Jy = np.column_stack([perp[:, 1], np.zeros(len(src)), -np.ones(len(src))])
-                H += w * (Jt.T @ Jt + Jy.T @ Jy)
-                g += w * (Jt.T @ r[:, 0] + Jy.T @ r[:, 1])
+            cnt = ok.sum(axis=1)
+            srt = np.sort(np.where(ok, d, np.inf), axis=1)
+            cut = srt[np.arange(H_n), np.clip(np.ceil(cfg.bg_trim * cnt).astype(int) - 1, 0, None)]
+            ok &= (d <= cut[:, None]) & (cnt[:, None] >= 3)
+            q = tree.data[np.where(ok, k, 0)]
+            r = np.where(ok[..., None], q - moved, 0.0)                          # (H, N, 2)
+            w = cfg.bg_weight_total / len(bg_other) / cfg.bg_sigma_m ** 2
+            perp = -np.einsum("hij,nj->hni", Rm, np.column_stack([-bg_other[:, 1], bg_other[:, 0]]))
+            perp = np.where(ok[..., None], perp, 0.0)
+            n_ok = ok.sum(axis=1).astype(float)
+            Hm[:, 0, 0] += w * (perp ** 2).sum(axis=(1, 2))
+            Hm[:, 0, 1] -= w * perp[..., 0].sum(axis=1)
+            Hm[:, 0, 2] -= w * perp[..., 1].sum(axis=1)
+            Hm[:, 1, 0], Hm[:, 2, 0] = Hm[:, 0, 1], Hm[:, 0, 2]
+            Hm[:, 1, 1] += w * n_ok
+            Hm[:, 2, 2] += w * n_ok
+            g[:, 0] += w * (perp * r).sum(axis=(1, 2))
+            g[:, 1] -= w * r[..., 0].sum(axis=1)
+            g[:, 2] -= w * r[..., 1].sum(axis=1)
         if yaws is not None:
-            gap = (yaw - yaws + np.pi) % (2 * np.pi) - np.pi
-            k = int(np.argmin(np.abs(gap)))
-            if abs(gap[k]) < np.radians(cfg.heading_gate_deg):
-                wy = np.radians(cfg.heading_sigma_deg) ** -2
-                H[0, 0] += wy
-                g[0] += wy * (-gap[k]) * -1.0
-        if H[1, 1] <= 0 or np.linalg.matrix_rank(H) < 3:
+            gap = (yaw[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi
+            near = gap[np.arange(H_n), np.abs(gap).argmin(axis=1)]
+            on = np.abs(near) < np.radians(cfg.heading_gate_deg)
+            wy = np.radians(cfg.heading_sigma_deg) ** -2
+            Hm[:, 0, 0] += wy * on
+            g[:, 0] += wy * near * on
+        det = np.linalg.det(Hm)
+        solvable = active & (det > 1e-9) & (Hm[:, 1, 1] > 0)
+        if not solvable.any():
             break
-        step = np.linalg.solve(H, -g)
-        yaw += step[0]
-        t = t + step[1:]
-        if np.abs(step).max() < 1e-4:
+        step = np.zeros((H_n, 3))
+        step[solvable] = np.linalg.solve(Hm[solvable], -g[solvable][..., None])[..., 0]
+        active = solvable & (np.abs(step).max(axis=1) >= 1e-4)
+        yaw = yaw + step[:, 0]
+        t = t + step[:, 1:]
+        if not active.any():
             break
-    return _rot(yaw), t
+    return _rots(yaw), t
