@@ -32,6 +32,7 @@ class ConsensusConfig:
     min_baseline_m: float = 2.0          # the two vehicles of a hypothesis must be this far apart
     gate_sigma: float = 3.0              # a vehicle lands on its partner within this Mahalanobis distance
     assign_gate_sigma: float = 2.5       # the same for the final one-to-one pairs
+    assign_min_score: float = 0.5        # detections scoring below this are never paired
     desc_weight: float = 1.5             # appearance share of the assignment cost
     desc_gate: float = 0.55              # pairs less alike than this are never matched
     desc_mid: float = 0.30               # descriptor distance where a pair is as likely the same as not
@@ -101,7 +102,7 @@ class ConsensusMatcher:
         veto = None
         if speed is not None and yaws is not None:
             veto = speed[int(np.argmin(_yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
-        pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto)
+        pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto, own.vehicle_boxes[:, 4], other.vehicle_boxes[:, 4])
         T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
         return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T)
 
@@ -260,12 +261,17 @@ def _background_scores(bg_own, bg_other, R, t, cfg, tree=None):
     return (hit * seen).sum(axis=1) / np.maximum(seen.sum(axis=1), cfg.background_min_seen)
 
 
-def _assign(A: Observations, B: Observations, D, R, t, cfg, veto=None):
-    """One-to-one pairs under a transform: Hungarian on Mahalanobis distance + appearance, gated (and vetoed)."""
+def _assign(A: Observations, B: Observations, D, R, t, cfg, veto=None, score_a=None, score_b=None):
+    """One-to-one pairs under a transform: Hungarian on Mahalanobis distance + appearance, gated (and vetoed).
+
+    A pair whose weaker detection scores below assign_min_score is never matched.
+    """
     dist = mahalanobis(A, B, R[None], t[None])[0]
     cost = dist / cfg.assign_gate_sigma + cfg.desc_weight * D
     big = 1e6
     allowed = (dist < cfg.assign_gate_sigma) & (D < cfg.desc_gate)
+    if score_a is not None and score_b is not None:
+        allowed &= np.minimum(score_a[:, None], score_b[None, :]) >= cfg.assign_min_score
     if veto is not None:
         allowed &= ~veto
     gated = np.where(allowed, cost, big)
