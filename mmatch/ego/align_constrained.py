@@ -1,8 +1,8 @@
 """The `constrained` aligner: matched vehicles, background and heading prior in one least-squares fit.
 
-Starts from the matcher's transform when it gives one, else from a weighted Kabsch on the
-matched vehicles (and, for a single pair, from that pair under each velocity-heading
-yaw). Each start is refined by Gauss-Newton (refine.py) in which only the matched pairs
+Starts from the matcher's transform when it gives one, from a weighted Kabsch on the
+matched vehicles, and from each matched pair alone under each velocity-heading yaw (a
+pair whose shared points belong to something else cannot then spoil every start). Each start is refined by Gauss-Newton (refine.py) in which only the matched pairs
 may act as vehicle terms, each weighted by its two views' line-of-sight covariances, so a
 pair seen from two directions pins the vehicle where the rays cross; the background
 (trimmed nearest neighbours) and the heading prior hold the rest. The start whose result
@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from mmatch.ego.base import AlignResult, MatchResult, descriptor_distance, heading_yaws
 from mmatch.ego.observations import ObservationModel, mahalanobis, observe
-from mmatch.ego.refine import RefineConfig, refine
+from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import kabsch2d, se2_to_matrix
 from mmatch.shared import SharedFrame
 
@@ -29,6 +29,7 @@ class ConstrainedConfig:
     refine: RefineConfig = field(default_factory=lambda: RefineConfig(iterations=10, vehicle_gate=6.0,
                                                                       desc_gate=1.01))
     score_gate_m: float = 1.0           # background points within this count as agreeing
+    max_single_pair_starts: int = 8     # up to this many pairs, each also starts a fit alone
 
 
 class ConstrainedAligner:
@@ -48,11 +49,12 @@ class ConstrainedAligner:
         if len(pairs) >= 2:
             w = 1.0 / np.array([np.trace(A.cov[i]) + np.trace(B.cov[j]) for i, j in pairs])
             starts.append(kabsch2d(B.centres[pairs[:, 1]], A.centres[pairs[:, 0]], w))
-        elif len(pairs) == 1 and match.T_hint is None and yaws is not None:
-            i, j = pairs[0]
-            for y in yaws:
-                R = np.array([[np.cos(y), -np.sin(y)], [np.sin(y), np.cos(y)]])
-                starts.append((R, A.centres[i] - R @ B.centres[j]))
+        if yaws is not None and len(pairs) <= cfg.max_single_pair_starts:
+            # each pair under each heading yaw: a start that one badly placed pair cannot spoil
+            for i, j in pairs:
+                for y in yaws:
+                    R = np.array([[np.cos(y), -np.sin(y)], [np.sin(y), np.cos(y)]])
+                    starts.append((R, A.centres[i] - R @ B.centres[j]))
         if not starts:
             return AlignResult(None, f"{len(pairs)} matched vehicle(s) and no usable hint")
         allowed = np.zeros((len(A.centres), len(B.centres)), bool)
@@ -60,13 +62,14 @@ class ConstrainedAligner:
         D = descriptor_distance(own.vehicle_features, other.vehicle_features)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
+        Rs, ts = refine_many(A, B, D, bg_own, bg_other, np.stack([r for r, _ in starts]),
+                             np.stack([x for _, x in starts]), yaws, cfg.refine, tree, allowed)
         best, best_score = None, -np.inf
-        for R0, t0 in starts:
-            R, t = refine(A, B, D, bg_own, bg_other, R0, t0, yaws, cfg.refine, tree, allowed)
+        for R, t in zip(Rs, ts):
             if not np.all(np.isfinite(t)):
                 continue
             score = _agreement(A, B, pairs, R, t, bg_other, tree, cfg)
-            if score > best_score:
+            if score > best_score + 1e-9:
                 best, best_score = (R, t), score
         if best is None:
             return AlignResult(None, "alignment diverged")
