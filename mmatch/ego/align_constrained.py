@@ -1,8 +1,9 @@
 """The `constrained` aligner: matched vehicles, background and heading prior in one least-squares fit.
 
 Starts from the matcher's transform when it gives one, from a weighted Kabsch on the
-matched vehicles, and from each matched pair alone under each velocity-heading yaw (a
-pair whose shared points belong to something else cannot then spoil every start). Each start is refined by Gauss-Newton (refine.py) in which only the matched pairs
+matched vehicles, and, when the matcher gives no transform, from each matched pair alone
+under each velocity-heading yaw (a pair whose shared points belong to something else
+cannot then spoil every start). Each start is refined by Gauss-Newton (refine.py) in which only the matched pairs
 may act as vehicle terms, each weighted by its two views' line-of-sight covariances, so a
 pair seen from two directions pins the vehicle where the rays cross; the background
 (trimmed nearest neighbours) and the heading prior hold the rest. The start whose result
@@ -49,7 +50,7 @@ class ConstrainedAligner:
         if len(pairs) >= 2:
             w = 1.0 / np.array([np.trace(A.cov[i]) + np.trace(B.cov[j]) for i, j in pairs])
             starts.append(kabsch2d(B.centres[pairs[:, 1]], A.centres[pairs[:, 0]], w))
-        if yaws is not None and len(pairs) <= cfg.max_single_pair_starts:
+        if match.T_hint is None and yaws is not None and len(pairs) <= cfg.max_single_pair_starts:
             # each pair under each heading yaw: a start that one badly placed pair cannot spoil
             for i, j in pairs:
                 for y in yaws:
