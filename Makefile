@@ -28,11 +28,11 @@ bench: $(STAMP)
 	$(BIN)/mmatch bench --out bench-results
 
 eval-easy: $(STAMP)
-	$(BIN)/mmatch sim --out data/easy --n 200 --seed 1 --mode easy --jobs 2
+	$(BIN)/mmatch sim --out data/easy --n 200 --seed 0 --mode easy --jobs 2
 	$(BIN)/mmatch eval data/easy --json data/easy-eval.json --jobs 2
 
 eval-hard: $(STAMP)
-	$(BIN)/mmatch sim --out data/hard --n 200 --seed 2 --mode hard --jobs 2
+	$(BIN)/mmatch sim --out data/hard --n 200 --seed 0 --mode hard --jobs 2
 	$(BIN)/mmatch eval data/hard --json data/hard-eval.json --jobs 2
 
 clean:

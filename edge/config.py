@@ -97,6 +97,8 @@ class SimSection:
     time_offset_s: float = _opt(0.0, doc="scenario time = shared clock + this, s")
     clock_offset_s: float = _opt(0.0, lo=-10.0, hi=10.0,
                                  doc="this vehicle's clock error: stamps = true capture time + this, s")
+    covisible: int = _opt(2, lo=0, hi=20,
+                          doc="redraw each 10 s world until both cameras see this many common vehicles")
 
 
 @dataclass(frozen=True)
@@ -124,6 +126,8 @@ class EgoSection:
     history: int = _opt(16, lo=1, hi=1024, doc="CAV frames kept per sender (keep-newest ring)")
     wait_s: float = _opt(0.035, lo=0.0, hi=1.0,
                          doc="live only: wait for a CAV frame closer in time until own capture + this, s")
+    track_max_age_s: float = _opt(2.0, lo=0.0, hi=60.0,
+                                  doc="carry each CAV's transform across frames this long (0: off), s")
 
 
 @dataclass(frozen=True)

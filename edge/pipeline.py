@@ -36,8 +36,11 @@ def _get(module: str, name: str) -> Callable:
                           "the vehicle service needs the CAV processing, codec and fusion modules") from exc
 
 
-def default_pipeline(*, need_fuse: bool = True) -> Pipeline:
+def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0) -> Pipeline:
     """The product pipeline; `need_fuse=False` lets a CAV run without the fusion module.
+
+    track_max_age_s > 0: one Fuser for the whole run that carries each CAV's transform
+    across frames (mmatch/ego/track.py) for up to that long.
 
     $MMATCH_PIPELINE="module:attr" names another `Pipeline` (for tests and experiments).
     """
@@ -48,7 +51,11 @@ def default_pipeline(*, need_fuse: bool = True) -> Pipeline:
         if not isinstance(pipe, Pipeline):
             raise MMatchError(f"pipeline: $MMATCH_PIPELINE={override!r} is not a Pipeline")
         return pipe
-    fuse = _get("mmatch.fusion", "fuse") if need_fuse else _no_fuse
+    fuse = _no_fuse
+    if need_fuse:
+        fuser, fusion_config = _get("mmatch.fusion", "Fuser"), _get("mmatch.fusion", "FusionConfig")
+        track_config = _get("mmatch.ego.track", "TrackConfig")
+        fuse = fuser(fusion_config(track=track_config(max_age_s=track_max_age_s))).fuse
     return Pipeline(process_view=_get("mmatch.cav.process", "process_view"),
                     encode=_get("mmatch.codec", "encode"), decode=_get("mmatch.codec", "decode"),
                     fuse=fuse)

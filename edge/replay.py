@@ -241,7 +241,7 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
             recorder.set_metadata("camera", logschema.camera_to_meta(camera, height))
         transport = stack.enter_context(Transport(cfg.zenoh)) if publish else None
         node = None
-        pipeline = default_pipeline(need_fuse=cfg.is_ego) if process else None
+        pipeline = default_pipeline(need_fuse=cfg.is_ego, track_max_age_s=cfg.ego.track_max_age_s) if process else None
 
         def fresh_node() -> Node:
             n = Node(cfg, pipeline, camera, height, publish=transport.put if transport else None,

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mmatch.ego.base import MatchContext, MatchResult, far_side_centres
+from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
+from mmatch.ego.track import TrackConfig, Tracker
 from mmatch.shared import SharedFrame
 
 SOURCE_OWN, SOURCE_OTHER, SOURCE_BOTH = 0, 1, 2
@@ -16,15 +17,19 @@ SOURCE_OWN, SOURCE_OTHER, SOURCE_BOTH = 0, 1, 2
 
 @dataclass(frozen=True)
 class FusionConfig:
-    """Which matcher and aligner run (by name)."""
+    """Which matcher and aligner run (by name); track: carry T_ego_cav across frames (off for
+    independent scene files, on in the vehicle service)."""
 
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
+    track: TrackConfig = TrackConfig(max_age_s=0.0)
 
 
 @dataclass
 class FusionResult:
     """status: "fused" | "single" (no CAV frame) | "no-estimate" (reason says why).
+
+    A fused result from the track alone (nothing to match in this frame) has reason "tracked".
 
     T_ego_cav: float64 4x4 or None; pairs: int32 (P, 2) (own vehicle, other vehicle);
     objects: float32 (O, 4) x, y (Ego radar frame, m), source (0 own, 1 other, 2 both),
@@ -46,26 +51,42 @@ class Fuser:
         self.config = config
         self.matcher = get_matcher(config.matcher)
         self.aligner = get_aligner(config.aligner)
+        self.tracker = Tracker(config.track)
 
     def fuse(self, own: SharedFrame, other: SharedFrame | None,
              context: MatchContext | None = None) -> FusionResult:
         own_objs = _objects(far_side_centres(own), SOURCE_OWN)
         if other is None:
             return FusionResult("single", "no CAV frame", objects=own_objs)
-        if own.num_vehicles == 0 or other.num_vehicles == 0:
-            return FusionResult("no-estimate", "no vehicles in "
-                                + ("the own frame" if own.num_vehicles == 0 else "the CAV frame"),
-                                objects=own_objs)
+        predicted = self.tracker.predict(own, other)
+        quick = predicted is not None and self.tracker.tracking_only(other)
         t0 = time.perf_counter()
-        match: MatchResult = self.matcher(own, other, context or MatchContext())
+        if own.num_vehicles == 0 or other.num_vehicles == 0:
+            if predicted is None:
+                return FusionResult("no-estimate", "no vehicles in "
+                                    + ("the own frame" if own.num_vehicles == 0 else "the CAV frame"),
+                                    objects=own_objs)
+            match = MatchResult()
+        else:
+            ctx = context or MatchContext()
+            match = self.matcher(own, other, replace(ctx, prior_T=predicted, prior_only=quick))
+        tracked = match.T_hint is None and len(match.pairs) == 0 and predicted is not None
+        if tracked:
+            match = replace(match, T_hint=predicted)
         t1 = time.perf_counter()
-        aligned = self.aligner(own, other, match)
+        if quick and match.T_hint is not None:
+            # a tracking frame: the matcher refined the prediction on vehicles, background
+            # and heading already; the aligner's second pass would redo the same fit
+            aligned = AlignResult(match.T_hint)
+        else:
+            aligned = self.aligner(own, other, match)
         t2 = time.perf_counter()
         timings = {"matching": (t1 - t0) * 1e3, "alignment": (t2 - t1) * 1e3}
         if aligned.T is None:
             return FusionResult("no-estimate", aligned.reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings)
-        return FusionResult("fused", "", aligned.T, match.pairs,
+        self.tracker.update(own, other, aligned.T, len(match.pairs), predicted, full_search=not quick)
+        return FusionResult("fused", "tracked" if tracked else "", aligned.T, match.pairs,
                             merge_objects(own, other, aligned.T, match.pairs), timings)
 
 

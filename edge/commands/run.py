@@ -65,7 +65,7 @@ def run_service(cfg, *, duration: float | None = None, process: bool = True) -> 
     from edge.sources import open_camera, open_radar
     from edge.transport import Transport
 
-    pipeline = default_pipeline(need_fuse=cfg.is_ego) if process else None
+    pipeline = default_pipeline(need_fuse=cfg.is_ego, track_max_age_s=cfg.ego.track_max_age_s) if process else None
     notifier = Notifier()
     with contextlib.ExitStack() as stack:
         recorder = None

@@ -35,7 +35,7 @@ class SimRadar(RadarSource):
 
         self.cfg = cfg
         self.view = sim_view(cfg)
-        self.scenario = make_scenario(cfg.sim.seed, cfg.sim.mode)
+        self.scenario = make_scenario(cfg.sim.seed, cfg.sim.mode, covisible=cfg.sim.covisible)
         self.period = 1.0 / cfg.sim.rate_hz
         self._clock, self._sleep = clock, sleep
         self._next: float | None = None

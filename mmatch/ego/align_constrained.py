@@ -27,10 +27,11 @@ from mmatch.shared import SharedFrame
 @dataclass(frozen=True)
 class ConstrainedConfig:
     observation: ObservationModel = ObservationModel()
-    refine: RefineConfig = field(default_factory=lambda: RefineConfig(iterations=10, vehicle_gate=6.0,
+    refine: RefineConfig = field(default_factory=lambda: RefineConfig(iterations=6, vehicle_gate=6.0,
                                                                       desc_gate=1.01))
     score_gate_m: float = 1.0           # background points within this count as agreeing
     max_single_pair_starts: int = 8     # up to this many pairs, each also starts a fit alone
+    kabsch_with_hint: bool = False      # also start from Kabsch when the matcher gives a transform
 
 
 class ConstrainedAligner:
@@ -47,7 +48,7 @@ class ConstrainedAligner:
         starts: list[tuple[np.ndarray, np.ndarray]] = []
         if match.T_hint is not None:
             starts.append((match.T_hint[:2, :2], match.T_hint[:2, 3]))
-        if len(pairs) >= 2:
+        if len(pairs) >= 2 and (match.T_hint is None or cfg.kabsch_with_hint):
             w = 1.0 / np.array([np.trace(A.cov[i]) + np.trace(B.cov[j]) for i, j in pairs])
             starts.append(kabsch2d(B.centres[pairs[:, 1]], A.centres[pairs[:, 0]], w))
         if match.T_hint is None and yaws is not None and len(pairs) <= cfg.max_single_pair_starts:

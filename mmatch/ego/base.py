@@ -15,9 +15,14 @@ class MatchContext:
 
     gt_box_pairs: (P, 2) ground-truth (own box index, other box index); only the `oracle`
     matcher reads it, and only evaluations provide it.
+    prior_T: T_ego_cav (4x4) predicted from earlier frames (see ego/track.py), or None.
+    prior_only: with prior_T, a matcher may skip its global search and only refine the
+        prediction (a tracking frame; the fuser asks for a full search regularly).
     """
 
     gt_box_pairs: np.ndarray | None = None
+    prior_T: np.ndarray | None = None
+    prior_only: bool = False
 
 
 @dataclass

@@ -9,7 +9,7 @@ are the Hungarian assignment under it, gated in distance and appearance.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -45,7 +45,9 @@ class ConsensusConfig:
     radar_half_fov_deg: float = 65.0
     radar_range_m: float = 100.0
     background_points: int = 150         # background points used for scoring
-    refine_hypotheses: int = 12          # best coarse hypotheses refined and rescored
+    refine_hypotheses: int = 8          # best coarse hypotheses refined and rescored
+    refine_with_prior: int = 4          # the same when a track predicts the transform (prior + 3)
+    quick_iterations: int = 3           # refinement rounds of a tracking frame (prediction only)
     distinct_m: float = 1.5              # hypotheses closer than this (and distinct_deg) count as one
     distinct_deg: float = 3.0
     yaw_gate_deg: float = 10.0           # hypotheses this far from every velocity-heading yaw are dropped
@@ -59,6 +61,9 @@ class ConsensusConfig:
     score_low: float = 0.3               # detection scores map to confidence 0 ... 1 between these
     score_high: float = 0.8
     min_confidence: float = 0.25
+    prior_weight: float = 1.0            # agreement with the track's prediction (MatchContext.prior_T)
+    prior_sigma_m: float = 1.5
+    prior_sigma_deg: float = 3.0
     observation: ObservationModel = ObservationModel()
     refine: RefineConfig = RefineConfig()
 
@@ -76,27 +81,40 @@ class ConsensusMatcher:
             return MatchResult()
         D = descriptor_distance(own.vehicle_features, other.vehicle_features)
         cand = _candidates(D, cfg.candidates_per_vehicle, cfg.desc_gate)
+        if ctx.prior_T is not None and ctx.prior_only:
+            cand = cand[:0]                   # tracking frame: the prediction is the only hypothesis
         yaws = heading_yaws(own, other)
         R, t = _pair_hypotheses(A.centres, B.centres, cand, cfg)
         if yaws is not None and len(cand):
             R1, t1 = _single_pair_hypotheses(A.centres, B.centres, cand, yaws)
             R, t = np.concatenate([R, R1]), np.concatenate([t, t1])
+        if yaws is not None and len(R):
+            keep = _yaw_gap(R, yaws) < np.radians(cfg.yaw_gate_deg)
+            if keep.any():
+                R, t = R[keep], t[keep]
+        prior = ctx.prior_T
+        if prior is not None:            # the track's prediction always competes
+            R, t = np.concatenate([R, prior[None, :2, :2]]), np.concatenate([t, prior[None, :2, 3]])
         if len(R) == 0:
             return MatchResult()
         speed = road_speed_consistency(own, other)
         alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg))
-        if yaws is not None:
-            keep = _yaw_gap(R, yaws) < np.radians(cfg.yaw_gate_deg)
-            if keep.any():
-                R, t = R[keep], t[keep]
         veh_score = _vehicle_scores(A, B, alike_of(R), R, t, cfg)
-        top = _distinct_best(R, t, veh_score, cfg)
+        n_refine = cfg.refine_hypotheses
+        if prior is not None:
+            veh_score[-1] = np.inf
+            n_refine = cfg.refine_with_prior
+        top = _distinct_best(R, t, veh_score, cfg, n_refine)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
-        R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, cfg.refine, tree)
+        rcfg = replace(cfg.refine, iterations=cfg.quick_iterations) if ctx.prior_only and prior is not None \
+            else cfg.refine
+        R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree)
         Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
         total = _vehicle_scores(A, B, alike_of(Rr), Rr, tr, cfg) \
             + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
+        if prior is not None:
+            total = total + cfg.prior_weight * _prior_agreement(Rr, tr, prior, cfg)
         best = int(np.argmax(total))
         R_b, t_b = Rr[best], tr[best]
         veto = None
@@ -105,6 +123,14 @@ class ConsensusMatcher:
         pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto, own.vehicle_boxes[:, 4], other.vehicle_boxes[:, 4])
         T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
         return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T)
+
+
+def _prior_agreement(R: np.ndarray, t: np.ndarray, prior: np.ndarray, cfg: ConsensusConfig) -> np.ndarray:
+    """(H,) 0-1 closeness of each hypothesis to the track's prediction."""
+    d = np.linalg.norm(t - prior[:2, 3], axis=1)
+    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0]) - np.arctan2(prior[1, 0], prior[0, 0])
+    dy = np.abs((yaw + np.pi) % (2 * np.pi) - np.pi)
+    return np.exp(-0.5 * ((d / cfg.prior_sigma_m) ** 2 + (dy / np.radians(cfg.prior_sigma_deg)) ** 2))
 
 
 def _yaw_gap(R: np.ndarray, yaws: np.ndarray, per_candidate: bool = False) -> np.ndarray:
@@ -144,13 +170,13 @@ def _single_pair_hypotheses(A, B, cand, yaws):
     return R, t
 
 
-def _distinct_best(R, t, score, cfg):
-    """Indices of the best `refine_hypotheses` hypotheses, skipping near-duplicates of better ones."""
+def _distinct_best(R, t, score, cfg, n):
+    """Indices of the best n hypotheses, skipping near-duplicates of better ones."""
     order = np.argsort(-score)
     yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
     chosen: list[int] = []
     for h in order:
-        if len(chosen) >= cfg.refine_hypotheses:
+        if len(chosen) >= n:
             break
         if chosen:
             c = np.asarray(chosen)

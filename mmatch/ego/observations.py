@@ -94,13 +94,22 @@ def observe(frame: SharedFrame, model: ObservationModel = ObservationModel()) ->
 
 
 def _maha_sq(ca, Sa, cb, Sb, R, t):
-    Bt = np.einsum("hij,vj->hvi", R, cb) + t[:, None]                            # (H, Vb, 2)
-    SB = np.einsum("hij,vjk,hlk->hvil", R, Sb, R)                                 # (H, Vb, 2, 2)
-    S = Sa[None, :, None] + SB[:, None]                                           # (H, Va, Vb, 2, 2)
-    d = ca[None, :, None] - Bt[:, None]                                           # (H, Va, Vb, 2)
-    det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] ** 2
-    return (S[..., 1, 1] * d[..., 0] ** 2 - 2 * S[..., 0, 1] * d[..., 0] * d[..., 1]
-            + S[..., 0, 0] * d[..., 1] ** 2) / np.maximum(det, 1e-12)
+    """(H, Va, Vb) squared Mahalanobis distances; explicit 2x2 algebra (einsum is slow here)."""
+    c, s = R[:, 0, 0][:, None], R[:, 1, 0][:, None]                           # (H, 1)
+    bx, by = cb[None, :, 0], cb[None, :, 1]                                   # (1, Vb)
+    btx, bty = c * bx - s * by + t[:, 0:1], s * bx + c * by + t[:, 1:2]       # (H, Vb)
+    a, b, d = Sb[None, :, 0, 0], Sb[None, :, 0, 1], Sb[None, :, 1, 1]
+    cc, ss, cs = c * c, s * s, c * s
+    r00 = a * cc - 2 * b * cs + d * ss                                        # R Sb R^T, (H, Vb)
+    r01 = (a - d) * cs + b * (cc - ss)
+    r11 = a * ss + 2 * b * cs + d * cc
+    s00 = Sa[None, :, None, 0, 0] + r00[:, None]                              # (H, Va, Vb)
+    s01 = Sa[None, :, None, 0, 1] + r01[:, None]
+    s11 = Sa[None, :, None, 1, 1] + r11[:, None]
+    dx = ca[None, :, None, 0] - btx[:, None]
+    dy = ca[None, :, None, 1] - bty[:, None]
+    det = s00 * s11 - s01 * s01
+    return (s11 * dx * dx - 2 * s01 * dx * dy + s00 * dy * dy) / np.maximum(det, 1e-12)
 
 
 def mahalanobis(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray,
@@ -112,15 +121,16 @@ def mahalanobis(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray,
     two views' estimates (penalties added). with_modes also returns the (H, Va, Vb) index of
     that combination (0 best-best, 1 best-camera, 2 camera-best, 3 camera-camera).
     """
-    best = None
-    mode = None
-    for k, ((ca, Sa, pa), (cb, Sb, pb)) in enumerate((a, b) for a in A.modes() for b in B.modes()):
-        q = _maha_sq(ca, Sa, cb, Sb, R, t) + pa[None, :, None] + pb[None, None, :]
-        if best is None:
-            best, mode = q, np.zeros(q.shape, np.int8)
-        else:
-            better = q < best
-            best = np.where(better, q, best)
-            mode[better] = k
+    Va, Vb = len(A.centres), len(B.centres)
+    ca = np.concatenate([A.centres, A.cam_centres])                   # (2 Va, 2): best, then camera
+    Sa = np.concatenate([A.cov, A.cam_cov])
+    cb = np.concatenate([B.centres, B.cam_centres])
+    Sb = np.concatenate([B.cov, B.cam_cov])
+    pen_a = np.concatenate([np.zeros(Va), A.cam_penalty])
+    pen_b = np.concatenate([np.zeros(Vb), B.cam_penalty])
+    q = _maha_sq(ca, Sa, cb, Sb, R, t) + pen_a[None, :, None] + pen_b[None, None, :]
+    q = q.reshape(len(R), 2, Va, 2, Vb).transpose(0, 2, 4, 1, 3).reshape(len(R), Va, Vb, 4)
+    mode = q.argmin(axis=3).astype(np.int8)                            # 2 * own mode + other mode
+    best = np.take_along_axis(q, mode[..., None].astype(np.intp), axis=3)[..., 0]
     d = np.sqrt(np.maximum(best, 0.0))
     return (d, mode) if with_modes else d

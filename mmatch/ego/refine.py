@@ -32,6 +32,7 @@ class RefineConfig:
     bg_trim: float = 0.8
     heading_sigma_deg: float = 3.0
     heading_gate_deg: float = 10.0
+    bg_max_points: int = 100            # > 0: use an evenly spaced subset of the other background
 
 
 def _rots(yaw: np.ndarray) -> np.ndarray:
@@ -65,6 +66,8 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
     if tree is None and len(bg_own) >= 3:
         tree = cKDTree(bg_own)
     ok_pair = D < cfg.desc_gate if allowed is None else allowed & (D < cfg.desc_gate)
+    if cfg.bg_max_points > 0 and len(bg_other) > cfg.bg_max_points:
+        bg_other = bg_other[np.linspace(0, len(bg_other) - 1, cfg.bg_max_points).astype(int)]
     use_bg = tree is not None and len(bg_other) >= 3
     active = np.ones(H_n, bool)
     if len(A.centres) and len(B.centres):

@@ -8,6 +8,7 @@ off the map. `make_scene` renders one Ego/CAV frame pair as a `Scene` with groun
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,23 +66,75 @@ class Observation:
 
 
 class Scenario:
-    """A world that moves over time, observed by the Ego (vehicle 0) and the CAV (vehicle 1)."""
+    """A world that moves over time, observed by the Ego (vehicle 0) and the CAV (vehicle 1).
+
+    Every EPISODE_S seconds a new world is drawn. covisible > 0 redraws an episode's world
+    (up to `tries` times) until both cameras detect at least that many common vehicles at
+    its start, as the scene files do; the live simulator uses it so that two vehicles
+    have something to fuse, and builds the next episode's world in the background
+    (drawing one takes 20-100 ms, longer than a frame).
+    """
 
     def __init__(self, seed: int, mode: str = "mixed", radar: RadarSpec = RadarSpec(),
-                 camera: CameraSpec = CameraSpec()) -> None:
+                 camera: CameraSpec = CameraSpec(), covisible: int = 0, tries: int = 10) -> None:
         if mode not in ("easy", "hard", "mixed"):
             raise ValueError(f"mode must be easy, hard or mixed, not {mode!r}")
         self.seed, self.mode, self.radar, self.cam = seed, mode, radar, camera
+        self.covisible, self.tries = covisible, tries
         rng = np.random.default_rng([seed, 7])
         self.mounts = {role: draw_mount(rng, camera) for role in ROLES}
         self._worlds: dict[int, World] = {}
+        self._lock = threading.Lock()
+        self._pending: dict[int, threading.Thread] = {}
 
     def world(self, episode: int) -> World:
-        if episode not in self._worlds:
-            if len(self._worlds) > 4:
+        pending = self._pending.get(episode)
+        if pending is not None:
+            pending.join()
+        with self._lock:
+            w = self._worlds.get(episode)
+        if w is None:
+            w = self._build(episode)
+            self._store(episode, w)
+        return w
+
+    def _store(self, episode: int, world: World) -> None:
+        with self._lock:
+            while len(self._worlds) > 4:
                 self._worlds.pop(next(iter(self._worlds)))
-            self._worlds[episode] = build_world(np.random.default_rng([self.seed, episode, 1]), self.mode)
-        return self._worlds[episode]
+            self._worlds[episode] = world
+            self._pending.pop(episode, None)
+
+    def _build(self, episode: int) -> World:
+        world = build_world(np.random.default_rng([self.seed, episode, 1]), self.mode)
+        for attempt in range(1, self.tries if self.covisible > 0 else 0):
+            if self._common_detections(world) >= self.covisible:
+                break
+            world = build_world(np.random.default_rng([self.seed, episode, 1, attempt]), self.mode)
+        return world
+
+    def _common_detections(self, world: World) -> int:
+        ids = []
+        for role in ROLES:
+            own = world.ego if role == "ego" else world.cav
+            w_T_r, _ = self.radar_pose(world, role, 0.0)
+            cam, T_cam_radar = self.camera_model(role)
+            m = self.mounts[role]
+            _, _, got = observe_camera(world, 0.0, w_T_r @ np.linalg.inv(T_cam_radar), cam.K, own,
+                                       np.random.default_rng([self.seed, 5]), self.cam, m.depth_sigma_rel,
+                                       m.light_gain)
+            ids.append(set(got[got >= 0].tolist()))
+        return len(ids[0] & ids[1])
+
+    def prefetch(self, episode: int) -> None:
+        """Start building `episode`'s world in a background thread (no-op if built or pending)."""
+        with self._lock:
+            if episode in self._worlds or episode in self._pending:
+                return
+            th = threading.Thread(target=lambda: self._store(episode, self._build(episode)),
+                                  name=f"sim-world-{episode}", daemon=True)
+            self._pending[episode] = th
+        th.start()
 
     def radar_pose(self, world: World, role: str, t: float) -> tuple[np.ndarray, np.ndarray]:
         """world_T_radar (4x4) and the radar's world velocity (2,) of `role` at local time t."""
@@ -106,6 +159,8 @@ class Scenario:
     def observe(self, role: str, t: float) -> Observation:
         """Render `role`'s radar frame and camera detections at time t (s)."""
         episode = int(np.floor(t / EPISODE_S))
+        if self.covisible > 0 and t - episode * EPISODE_S > EPISODE_S / 2:
+            self.prefetch(episode + 1)
         return self._observe(self.world(episode), role, t - episode * EPISODE_S, t,
                              np.random.default_rng([self.seed, episode, ROLES.index(role) + 2,
                                                     int(round(t * 1e6)) % 2**32]))
@@ -126,9 +181,9 @@ class Scenario:
                            box_ids=ids, world_T_radar=w_T_r, velocity=v_radar)
 
 
-def make_scenario(seed: int, mode: str = "mixed") -> Scenario:
-    """The scenario of `seed` in `mode` ('easy', 'hard' or 'mixed')."""
-    return Scenario(seed, mode)
+def make_scenario(seed: int, mode: str = "mixed", covisible: int = 0) -> Scenario:
+    """The scenario of `seed` in `mode` ('easy', 'hard' or 'mixed'); see Scenario for covisible."""
+    return Scenario(seed, mode, covisible=covisible)
 
 
 def _pairs(ego_ids: np.ndarray, cav_ids: np.ndarray) -> np.ndarray:

@@ -1,0 +1,125 @@
+"""Carrying T_ego_cav across frames: prediction from both radars' motion, trust, tracked fusion."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mmatch.ego.rigid import se2_to_matrix
+from mmatch.ego.track import TrackConfig, Tracker
+from mmatch.fusion import Fuser, FusionConfig
+from mmatch.metrics import rre_deg, rte_m
+from mmatch.shared import SharedFrame
+
+
+def _rot(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+
+def _world_T(x: float, y: float, yaw_deg: float) -> np.ndarray:
+    return se2_to_matrix(_rot(yaw_deg), np.array([x, y]))
+
+
+def _frame(sender: str, stamp: float, velocity, vehicles: np.ndarray, background: np.ndarray) -> SharedFrame:
+    """A shared frame with one radar point per (parked) vehicle; the reader corrects its far side."""
+    V = len(vehicles)
+    u = vehicles / np.maximum(np.linalg.norm(vehicles, axis=1, keepdims=True), 1e-6)
+    near = vehicles - 1.4 * u
+    doppler = -(u @ np.asarray(velocity, float))                  # stationary targets
+    return SharedFrame(sender, 0, stamp, 0.5, ego_velocity=np.asarray(velocity, float),
+                       vehicle_points=np.c_[near, np.zeros(V), doppler, np.full(V, 10.0)].astype(np.float32),
+                       vehicle_index=np.arange(V, dtype=np.int32),
+                       vehicle_boxes=np.tile(np.array([0, 0, 10, 10, 0.9, 20], np.float32), (V, 1)),
+                       vehicle_box_index=np.arange(V, dtype=np.int32),
+                       vehicle_centers=vehicles.astype(np.float32).reshape(-1, 2),
+                       vehicle_features=np.tile(np.eye(32, dtype=np.float32)[[0, 16, 24]].sum(0), (V, 1)),
+                       background=np.c_[background, np.zeros(len(background))].astype(np.float32))
+
+
+class World:
+    """Two radars driving straight (the CAV turned 90 deg), cars and walls fixed in the world."""
+
+    def __init__(self) -> None:
+        self.v_ego, self.v_cav = np.array([0.0, 12.0]), np.array([0.0, 9.0])   # own-frame velocities
+        self.cars = np.array([[-3.0, 40.0], [4.0, 46.0], [-6.0, 55.0]])
+        wall = np.column_stack([np.full(80, 9.0), np.linspace(0, 90, 80)])
+        wall2 = np.column_stack([np.linspace(-30, 9, 40), np.full(40, 70.0)])
+        self.walls = np.vstack([wall, wall2, wall * [-1, 1]])
+
+    def pose(self, who: str, t: float) -> np.ndarray:
+        if who == "ego":
+            return _world_T(0.0, self.v_ego[1] * t, 0.0)
+        return _world_T(60.0 - self.v_cav[1] * t, 45.0, 90.0)     # drives towards -x in the world
+
+    def truth(self, t_ego: float, t_cav: float) -> np.ndarray:
+        return np.linalg.inv(self.pose("ego", t_ego)) @ self.pose("cav", t_cav)
+
+    def frame(self, who: str, t: float, with_cars: bool) -> SharedFrame:
+        inv = np.linalg.inv(self.pose(who, t))
+
+        def local(p: np.ndarray) -> np.ndarray:
+            return p @ inv[:2, :2].T + inv[:2, 3]
+        bg = local(self.walls)
+        bg = bg[(bg[:, 1] > 1) & (np.abs(np.arctan2(bg[:, 0], bg[:, 1])) < np.radians(60))]
+        cars = local(self.cars) if with_cars else np.zeros((0, 2))
+        v = self.v_ego if who == "ego" else self.v_cav
+        return _frame(who, t, v, cars, bg)
+
+
+def test_prediction_follows_both_radars_motion():
+    w = World()
+    tr = Tracker(TrackConfig(max_age_s=2.0))
+    own0, oth0 = w.frame("ego", 2.02, True), w.frame("cav", 2.0, True)
+    assert tr.update(own0, oth0, w.truth(2.02, 2.0), n_pairs=3, predicted=None)
+    own1, oth1 = w.frame("ego", 2.52, True), w.frame("cav", 2.50, True)
+    pred = tr.predict(own1, oth1)
+    truth = w.truth(2.52, 2.50)
+    assert rte_m(truth, pred) < 1e-6 and rre_deg(truth, pred) < 1e-6
+    # stale tracks are dropped
+    assert tr.predict(w.frame("ego", 5.0, True), w.frame("cav", 5.0, True)) is None
+
+
+def test_only_trusted_estimates_replace_the_track():
+    w = World()
+    tr = Tracker(TrackConfig(max_age_s=2.0))
+    own, oth = w.frame("ego", 1.0, True), w.frame("cav", 1.0, True)
+    wrong = w.truth(1.0, 1.0) @ se2_to_matrix(_rot(0), np.array([6.0, 0.0]))
+    assert not tr.update(own, oth, wrong, n_pairs=1, predicted=None)       # one pair, nothing to agree with
+    assert tr.predict(own, oth) is None
+    assert tr.update(own, oth, w.truth(1.0, 1.0), n_pairs=2, predicted=None)
+    pred = tr.predict(own, oth)
+    assert not tr.update(own, oth, wrong, n_pairs=1, predicted=pred)      # far from the prediction
+    near = w.truth(1.0, 1.0) @ se2_to_matrix(_rot(1.0), np.array([0.5, 0.0]))
+    assert tr.update(own, oth, near, n_pairs=0, predicted=pred)           # close to it
+    assert not Tracker(TrackConfig(max_age_s=0.0)).update(own, oth, w.truth(1.0, 1.0), 5, None)
+
+
+def test_a_frame_without_vehicles_is_fused_from_the_track():
+    w = World()
+    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0)))
+    first = fuser.fuse(w.frame("ego", 5.02, True), w.frame("cav", 5.0, True))
+    assert first.status == "fused" and len(first.pairs) == 3
+    assert rte_m(w.truth(5.02, 5.0), first.T_ego_cav) < 1.0
+    later = fuser.fuse(w.frame("ego", 5.52, True), w.frame("cav", 5.5, False))   # the CAV sees no car
+    assert later.status == "fused" and later.reason == "tracked" and len(later.pairs) == 0
+    truth = w.truth(5.52, 5.5)
+    assert rte_m(truth, later.T_ego_cav) < 1.0 and rre_deg(truth, later.T_ego_cav) < 2.0
+    # without tracking the same frame has nothing to go on
+    plain = Fuser().fuse(w.frame("ego", 5.52, True), w.frame("cav", 5.5, False))
+    assert plain.status == "no-estimate" and "no vehicles" in plain.reason
+
+
+def test_tracking_frames_refine_the_prediction_and_a_full_search_comes_back_regularly():
+    w = World()
+    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, full_search_every=3)))
+    quick = []
+    for k in range(7):
+        t = 3.0 + 0.05 * k
+        own, oth = w.frame("ego", t + 0.02, True), w.frame("cav", t, True)
+        quick.append(fuser.tracker.tracking_only(oth))
+        res = fuser.fuse(own, oth)
+        truth = w.truth(t + 0.02, t)
+        assert res.status == "fused" and rte_m(truth, res.T_ego_cav) < 1.0 and rre_deg(truth, res.T_ego_cav) < 2.0
+        assert len(res.pairs) == 3
+    # full search, two tracking frames, full search, ...
+    assert quick == [False, True, True, False, True, True, False]
