@@ -57,3 +57,17 @@ def test_vehicles_move_between_observations():
     assert np.linalg.norm(b.world_T_radar[:2, 3] - a.world_T_radar[:2, 3]) > 3.0
     same = sc.observe("ego", 1.0)
     assert np.array_equal(same.points, a.points)
+
+
+def test_live_scenario_draws_worlds_both_cameras_share_and_prefetches_the_next():
+    from mmatch.sim.scenario import EPISODE_S, Scenario
+
+    plain, live = Scenario(4, "hard"), Scenario(4, "hard", covisible=2)
+    shared_plain = [plain._common_detections(plain.world(ep)) for ep in range(6)]
+    shared_live = [live._common_detections(live.world(ep)) for ep in range(6)]
+    assert min(shared_live) >= 2 and sum(shared_live) >= sum(shared_plain)
+    live.observe("ego", 6 * EPISODE_S + 0.6 * EPISODE_S)      # second half of episode 6
+    pending = live._pending.get(7)
+    if pending is not None:
+        pending.join()
+    assert 7 in live._worlds
