@@ -12,14 +12,29 @@ HERE = Path(__file__).parent
 CFG_PATH = HERE / "awr2243_3tx.cfg"
 
 
+def _inet_inodes() -> set[str]:
+    """Inodes of this process' TCP/UDP sockets (not netlink or unix ones that libraries such
+    as libusb open from their own threads at any time)."""
+    inodes = set()
+    for table in ("tcp", "tcp6", "udp", "udp6"):
+        try:
+            with open(f"/proc/self/net/{table}") as f:
+                next(f)
+                inodes.update(line.split()[9] for line in f if line.strip())
+        except OSError:
+            continue
+    return inodes
+
+
 def _open_sockets() -> set[str]:
     out = set()
+    inet = _inet_inodes()
     for fd in os.listdir("/proc/self/fd"):
         try:
             target = os.readlink(f"/proc/self/fd/{fd}")
         except OSError:
             continue
-        if target.startswith("socket:"):
+        if target.startswith("socket:") and target[8:-1] in inet:
             out.add(f"{fd}:{target}")
     return out
 
