@@ -27,8 +27,8 @@ from mmatch.shared import SharedFrame
 @dataclass(frozen=True)
 class ConstrainedConfig:
     observation: ObservationModel = ObservationModel()
-    refine: RefineConfig = field(default_factory=lambda: RefineConfig(iterations=6, vehicle_gate=6.0,
-                                                                      desc_gate=1.01))
+    refine: RefineConfig = field(default_factory=lambda: RefineConfig(
+        iterations=8, vehicle_gate=6.0, desc_gate=1.01, bg_weight_total=16.0))   # background weighs 16 vehicles
     score_gate_m: float = 1.0           # background points within this count as agreeing
     max_single_pair_starts: int = 8     # up to this many pairs, each also starts a fit alone
     kabsch_with_hint: bool = False      # also start from Kabsch when the matcher gives a transform
