@@ -94,6 +94,7 @@ class SimRadar(RadarSource):
 
     def close(self) -> None:
         self._closed = True
+        self.scenario.close()
 
 
 class SimCamera(CameraSource):

@@ -8,7 +8,11 @@ off the map. `make_scene` renders one Ego/CAV frame pair as a `Scene` with groun
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import threading
+import time
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,14 +73,14 @@ class Scenario:
     """A world that moves over time, observed by the Ego (vehicle 0) and the CAV (vehicle 1).
 
     Every EPISODE_S seconds a new world is drawn. covisible > 0 redraws an episode's world
-    (up to `tries` times) until both cameras detect at least that many common vehicles at
-    its start, as the scene files do; the live simulator uses it so that two vehicles
+    (up to `tries` times, keeping the best) until both cameras detect at least that many
+    common vehicles at its start and middle, as the scene files ask of their frames; the live simulator uses it so that two vehicles
     have something to fuse, and builds the next episode's world in the background
-    (drawing one takes 20-100 ms, longer than a frame).
+    (drawing one takes 0.1-0.5 s, longer than a frame) in a helper process.
     """
 
     def __init__(self, seed: int, mode: str = "mixed", radar: RadarSpec = RadarSpec(),
-                 camera: CameraSpec = CameraSpec(), covisible: int = 0, tries: int = 10) -> None:
+                 camera: CameraSpec = CameraSpec(), covisible: int = 0, tries: int = 20) -> None:
         if mode not in ("easy", "hard", "mixed"):
             raise ValueError(f"mode must be easy, hard or mixed, not {mode!r}")
         self.seed, self.mode, self.radar, self.cam = seed, mode, radar, camera
@@ -85,12 +89,16 @@ class Scenario:
         self.mounts = {role: draw_mount(rng, camera) for role in ROLES}
         self._worlds: dict[int, World] = {}
         self._lock = threading.Lock()
-        self._pending: dict[int, threading.Thread] = {}
+        self._pending: dict[int, Future] = {}
+        self._pool: ProcessPoolExecutor | None = None
 
     def world(self, episode: int) -> World:
         pending = self._pending.get(episode)
         if pending is not None:
-            pending.join()
+            try:
+                self._store(episode, pending.result())
+            except Exception:           # the helper failed: build here
+                self._pending.pop(episode, None)
         with self._lock:
             w = self._worlds.get(episode)
         if w is None:
@@ -107,34 +115,57 @@ class Scenario:
 
     def _build(self, episode: int) -> World:
         world = build_world(np.random.default_rng([self.seed, episode, 1]), self.mode)
-        for attempt in range(1, self.tries if self.covisible > 0 else 0):
-            if self._common_detections(world) >= self.covisible:
+        if self.covisible <= 0:
+            return world
+        best, best_n = world, self._covisibility(world)
+        for attempt in range(1, self.tries):
+            if best_n >= self.covisible:
                 break
             world = build_world(np.random.default_rng([self.seed, episode, 1, attempt]), self.mode)
-        return world
+            n = self._covisibility(world)
+            if n > best_n:
+                best, best_n = world, n
+        return best
 
-    def _common_detections(self, world: World) -> int:
+    def _covisibility(self, world: World) -> int:
+        """Fewest vehicles both cameras detect, at the episode's start and middle."""
+        return min(self._common_detections(world, t) for t in (0.0, EPISODE_S / 2))
+
+    def _common_detections(self, world: World, t: float = 0.0) -> int:
         ids = []
         for role in ROLES:
             own = world.ego if role == "ego" else world.cav
-            w_T_r, _ = self.radar_pose(world, role, 0.0)
+            w_T_r, _ = self.radar_pose(world, role, t)
             cam, T_cam_radar = self.camera_model(role)
             m = self.mounts[role]
-            _, _, got = observe_camera(world, 0.0, w_T_r @ np.linalg.inv(T_cam_radar), cam.K, own,
+            _, _, got = observe_camera(world, t, w_T_r @ np.linalg.inv(T_cam_radar), cam.K, own,
                                        np.random.default_rng([self.seed, 5]), self.cam, m.depth_sigma_rel,
                                        m.light_gain)
             ids.append(set(got[got >= 0].tolist()))
         return len(ids[0] & ids[1])
 
     def prefetch(self, episode: int) -> None:
-        """Start building `episode`'s world in a background thread (no-op if built or pending)."""
+        """Start building `episode`'s world in a helper process (no-op if built or pending).
+
+        A process, not a thread: drawing and checking a world is Python-heavy (0.1-0.5 s)
+        and would hold the interpreter lock against the vehicle's own frame loop.
+        """
         with self._lock:
             if episode in self._worlds or episode in self._pending:
                 return
-            th = threading.Thread(target=lambda: self._store(episode, self._build(episode)),
-                                  name=f"sim-world-{episode}", daemon=True)
-            self._pending[episode] = th
-        th.start()
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                                 initializer=_exit_with_parent, initargs=(os.getpid(),))
+            future = self._pool.submit(_build_world, self.seed, self.mode, self.covisible, self.tries, episode)
+            self._pending[episode] = future
+        future.add_done_callback(lambda f: self._store(episode, f.result()) if not f.exception() else None)
+
+    def close(self) -> None:
+        """Stop the helper process, if one was started."""
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
 
     def radar_pose(self, world: World, role: str, t: float) -> tuple[np.ndarray, np.ndarray]:
         """world_T_radar (4x4) and the radar's world velocity (2,) of `role` at local time t."""
@@ -179,6 +210,21 @@ class Scenario:
         return Observation(points=pts, boxes=boxes, features=feats, camera=cam,
                            radar_height=m.radar_height, stamp=stamp, point_labels=labels,
                            box_ids=ids, world_T_radar=w_T_r, velocity=v_radar)
+
+
+def _exit_with_parent(parent: int) -> None:
+    """In the helper process: leave as soon as the vehicle process that started it is gone
+    (a SIGKILLed parent cannot shut its pool down)."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(0)
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def _build_world(seed: int, mode: str, covisible: int, tries: int, episode: int) -> World:
+    """An episode's world, drawn in a helper process (same result as in the caller)."""
+    return Scenario(seed, mode, covisible=covisible, tries=tries)._build(episode)
 
 
 def make_scenario(seed: int, mode: str = "mixed", covisible: int = 0) -> Scenario:

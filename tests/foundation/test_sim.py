@@ -66,8 +66,11 @@ def test_live_scenario_draws_worlds_both_cameras_share_and_prefetches_the_next()
     shared_plain = [plain._common_detections(plain.world(ep)) for ep in range(6)]
     shared_live = [live._common_detections(live.world(ep)) for ep in range(6)]
     assert min(shared_live) >= 2 and sum(shared_live) >= sum(shared_plain)
-    live.observe("ego", 6 * EPISODE_S + 0.6 * EPISODE_S)      # second half of episode 6
-    pending = live._pending.get(7)
-    if pending is not None:
-        pending.join()
-    assert 7 in live._worlds
+    try:
+        live.observe("ego", 6 * EPISODE_S + 0.6 * EPISODE_S)      # second half of episode 6
+        pending = live._pending.get(7)
+        assert pending is not None or 7 in live._worlds
+        prefetched = live.world(7)
+        assert live._common_detections(prefetched) == live._common_detections(live._build(7))
+    finally:
+        live.close()
