@@ -44,6 +44,14 @@ class SimRadar(RadarSource):
         self._render_s = 0.015  # running estimate of one observation's render time, s
         self.camera_feed: KeepNewest[Detections] | None = None
         self._closed = False
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Draw the current episode's world now (it can take half a second), not in the first read."""
+        from mmatch.sim.scenario import EPISODE_S
+
+        t = self._clock() + self.cfg.sim.time_offset_s
+        self.scenario.world(int(t // EPISODE_S))
 
     @property
     def camera(self) -> CameraModel:

@@ -25,7 +25,7 @@ class TrackConfig:
     agree_m: float = 2.0            # an estimate this close to the prediction is trusted...
     agree_deg: float = 5.0
     min_pairs: int = 2              # ...as is one with this many matched vehicles
-    full_search_every: int = 5      # frames between full (global) searches while tracking
+    full_search_every: int = 10     # frames between full (global) searches while tracking
 
 
 @dataclass

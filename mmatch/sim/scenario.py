@@ -8,11 +8,10 @@ off the map. `make_scene` renders one Ego/CAV frame pair as a `Scene` with groun
 
 from __future__ import annotations
 
-import multiprocessing
-import os
+import pickle
+import subprocess
+import sys
 import threading
-import time
-from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,7 +75,7 @@ class Scenario:
     (up to `tries` times, keeping the best) until both cameras detect at least that many
     common vehicles at its start and middle, as the scene files ask of their frames; the live simulator uses it so that two vehicles
     have something to fuse, and builds the next episode's world in the background
-    (drawing one takes 0.1-0.5 s, longer than a frame) in a helper process.
+    (drawing one takes 0.1-0.5 s, longer than a frame) in a child process.
     """
 
     def __init__(self, seed: int, mode: str = "mixed", radar: RadarSpec = RadarSpec(),
@@ -89,16 +88,12 @@ class Scenario:
         self.mounts = {role: draw_mount(rng, camera) for role in ROLES}
         self._worlds: dict[int, World] = {}
         self._lock = threading.Lock()
-        self._pending: dict[int, Future] = {}
-        self._pool: ProcessPoolExecutor | None = None
+        self._pending: dict[int, threading.Thread] = {}
 
     def world(self, episode: int) -> World:
         pending = self._pending.get(episode)
         if pending is not None:
-            try:
-                self._store(episode, pending.result())
-            except Exception:           # the helper failed: build here
-                self._pending.pop(episode, None)
+            pending.join()
         with self._lock:
             w = self._worlds.get(episode)
         if w is None:
@@ -145,27 +140,33 @@ class Scenario:
         return len(ids[0] & ids[1])
 
     def prefetch(self, episode: int) -> None:
-        """Start building `episode`'s world in a helper process (no-op if built or pending).
+        """Start drawing `episode`'s world ahead of time (no-op if drawn or pending).
 
-        A process, not a thread: drawing and checking a world is Python-heavy (0.1-0.5 s)
-        and would hold the interpreter lock against the vehicle's own frame loop.
+        The draw runs in a child process (`python -m mmatch.sim.worldgen`), waited for by a
+        thread that only blocks on I/O: drawing and checking a world is Python-heavy
+        (0.1-0.5 s) and would hold the interpreter lock against the vehicle's frame loop.
+        If the child fails, the thread draws the world itself.
         """
         with self._lock:
             if episode in self._worlds or episode in self._pending:
                 return
-            if self._pool is None:
-                self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                                 initializer=_exit_with_parent, initargs=(os.getpid(),))
-            future = self._pool.submit(_build_world, self.seed, self.mode, self.covisible, self.tries, episode)
-            self._pending[episode] = future
-        future.add_done_callback(lambda f: self._store(episode, f.result()) if not f.exception() else None)
+            th = threading.Thread(target=self._draw_elsewhere, args=(episode,), name=f"sim-world-{episode}",
+                                  daemon=True)
+            self._pending[episode] = th
+        th.start()
+
+    def _draw_elsewhere(self, episode: int) -> None:
+        args = [sys.executable, "-m", "mmatch.sim.worldgen", str(self.seed), self.mode, str(self.covisible),
+                str(self.tries), str(episode)]
+        try:
+            out = subprocess.run(args, capture_output=True, timeout=60, check=True).stdout
+            world = pickle.loads(out)
+        except (OSError, subprocess.SubprocessError, pickle.UnpicklingError, EOFError):
+            world = self._build(episode)
+        self._store(episode, world)
 
     def close(self) -> None:
-        """Stop the helper process, if one was started."""
-        with self._lock:
-            pool, self._pool = self._pool, None
-        if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+        """Nothing to release (kept for callers that close their sources)."""
 
     def radar_pose(self, world: World, role: str, t: float) -> tuple[np.ndarray, np.ndarray]:
         """world_T_radar (4x4) and the radar's world velocity (2,) of `role` at local time t."""
@@ -210,21 +211,6 @@ class Scenario:
         return Observation(points=pts, boxes=boxes, features=feats, camera=cam,
                            radar_height=m.radar_height, stamp=stamp, point_labels=labels,
                            box_ids=ids, world_T_radar=w_T_r, velocity=v_radar)
-
-
-def _exit_with_parent(parent: int) -> None:
-    """In the helper process: leave as soon as the vehicle process that started it is gone
-    (a SIGKILLed parent cannot shut its pool down)."""
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(0.5)
-        os._exit(0)
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
-
-
-def _build_world(seed: int, mode: str, covisible: int, tries: int, episode: int) -> World:
-    """An episode's world, drawn in a helper process (same result as in the caller)."""
-    return Scenario(seed, mode, covisible=covisible, tries=tries)._build(episode)
 
 
 def make_scenario(seed: int, mode: str = "mixed", covisible: int = 0) -> Scenario:
