@@ -58,6 +58,7 @@ class ConsensusConfig:
     sighting_m: float = 3.5
     body_offset_m: float = 2.3           # radar (front bumper) to vehicle centre
     speed_weight: float = 0.5            # road-speed agreement (+1 / 0 / -1) in likeness units
+    typical_score: float = 0.8           # a frame's median detection score is lifted to at least this
     score_low: float = 0.3               # detection scores map to confidence 0 ... 1 between these
     score_high: float = 0.8
     min_confidence: float = 0.25
@@ -120,7 +121,7 @@ class ConsensusMatcher:
         veto = None
         if speed is not None and yaws is not None:
             veto = speed[int(np.argmin(_yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
-        pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto, own.vehicle_boxes[:, 4], other.vehicle_boxes[:, 4])
+        pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto, _scores(own, cfg), _scores(other, cfg))
         T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
         return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T)
 
@@ -139,9 +140,19 @@ def _yaw_gap(R: np.ndarray, yaws: np.ndarray, per_candidate: bool = False) -> np
     return gap if per_candidate else gap.min(axis=1)
 
 
+def _scores(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
+    """(V,) detection scores lifted so that the frame's median is at least `typical_score`:
+    a detector calibrated lower overall keeps its ranking without losing every vehicle."""
+    sc = frame.vehicle_boxes[:, 4].astype(float)
+    if len(sc) == 0:
+        return sc
+    med = float(np.median(sc))
+    return sc * (cfg.typical_score / med if 0 < med < cfg.typical_score else 1.0)
+
+
 def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
     """(V,) 0-1 trust in each vehicle from its detection score (false detections score low)."""
-    c = (frame.vehicle_boxes[:, 4].astype(float) - cfg.score_low) / (cfg.score_high - cfg.score_low)
+    c = (_scores(frame, cfg) - cfg.score_low) / (cfg.score_high - cfg.score_low)
     return np.clip(c, cfg.min_confidence, 1.0)
 
 
@@ -290,7 +301,7 @@ def _background_scores(bg_own, bg_other, R, t, cfg, tree=None):
 def _assign(A: Observations, B: Observations, D, R, t, cfg, veto=None, score_a=None, score_b=None):
     """One-to-one pairs under a transform: Hungarian on Mahalanobis distance + appearance, gated (and vetoed).
 
-    A pair whose weaker detection scores below assign_min_score is never matched.
+    A detection scoring (normalised, see `_scores`) below assign_min_score is never matched.
     """
     dist = mahalanobis(A, B, R[None], t[None])[0]
     cost = dist / cfg.assign_gate_sigma + cfg.desc_weight * D
