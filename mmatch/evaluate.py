@@ -12,7 +12,7 @@ import logging
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,11 +28,16 @@ CAV_STAGES = ("egomotion", "separation", "clustering", "background")
 
 @dataclass(frozen=True)
 class EvalConfig:
-    """matcher / aligner by name; cav: "pipeline" (CAV-side processing) or "labels" (perfect separation)."""
+    """matcher / aligner by name; cav: "pipeline" (CAV-side processing) or "labels" (perfect separation).
+
+    descriptor_scale: factor on appearance-descriptor distances (ego/descriptor_scale.py);
+    None: `evaluate_dir` measures it on the folder (no labels used), a single scene uses 1.
+    """
 
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
     cav: str = "pipeline"
+    descriptor_scale: float | None = None
 
 
 _FUSERS: dict = {}
@@ -68,7 +73,8 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> dict:
     t1 = time.perf_counter()
     received = decode(payload)
     t2 = time.perf_counter()
-    result = _fuser(cfg).fuse(own, received, MatchContext(gt_box_pairs=scene.gt_pairs))
+    scale = 1.0 if cfg.descriptor_scale is None else cfg.descriptor_scale
+    result = _fuser(cfg).fuse(own, received, MatchContext(gt_box_pairs=scene.gt_pairs, descriptor_scale=scale))
     stages = dict(stages, encode=(t1 - t0) * 1e3, decode=(t2 - t1) * 1e3, **result.timings)
     box_pairs = np.column_stack([own.vehicle_box_index[result.pairs[:, 0]],
                                  received.vehicle_box_index[result.pairs[:, 1]]]) if len(result.pairs) \
@@ -100,10 +106,31 @@ def _evaluate_file(args: tuple[str, EvalConfig]) -> dict:
     return res
 
 
+def folder_descriptor_scale(files: list[str]) -> float:
+    """The descriptor scale of a folder's cameras from every frame pair's descriptors (no labels).
+
+    Files that cannot be read are skipped here; the evaluation rejects them with the reason.
+    """
+    from mmatch.ego.descriptor_scale import frame_median, scale_from_medians
+    medians = []
+    for f in files:
+        try:
+            with np.load(f, allow_pickle=False) as z:
+                a, b = np.asarray(z["ego_features"], np.float64), np.asarray(z["cav_features"], np.float64)
+        except Exception:                                   # noqa: BLE001 - reported by the evaluation
+            continue
+        if a.ndim == 2 and b.ndim == 2 and a.shape[1] == b.shape[1] and np.isfinite(a).all() \
+                and np.isfinite(b).all():
+            medians.append(frame_median(a, b))
+    return scale_from_medians(medians)
+
+
 def evaluate_dir(folder: str | Path, cfg: EvalConfig = EvalConfig(), jobs: int = 1,
                  progress: Callable[[int, int], None] | None = None) -> tuple[dict, list[dict]]:
     """Evaluate every *.npz of `folder`; returns (report as DESIGN.md, per-file results)."""
     files = sorted(str(p) for p in Path(folder).glob("*.npz"))
+    if cfg.descriptor_scale is None:
+        cfg = replace(cfg, descriptor_scale=folder_descriptor_scale(files))
     tasks = [(f, cfg) for f in files]
     results: list[dict] = []
     if jobs <= 1:
@@ -158,7 +185,8 @@ def format_table(rep: dict) -> str:
     f1 = (2 * rep["pair_precision"] * rep["pair_recall"] / (rep["pair_precision"] + rep["pair_recall"])
           if rep["pair_precision"] + rep["pair_recall"] else 0.0)
     lines = [
-        f"matcher {rep['config']['matcher']}, aligner {rep['config']['aligner']}, cav {rep['config']['cav']}",
+        f"matcher {rep['config']['matcher']}, aligner {rep['config']['aligner']}, cav {rep['config']['cav']}, "
+        f"descriptor scale {rep['config'].get('descriptor_scale') or 1.0:.3f}",
         f"scenes {rep['scenes']}  rejected {rep['rejected']}  no estimate {rep['no_estimate']}",
         f"{'':<14}{'median':>9}{'mean':>9}{'p90':>9}",
         f"{'RRE (deg)':<14}{rep['rre_deg']['median']:>9.2f}{rep['rre_deg']['mean']:>9.2f}{rep['rre_deg']['p90']:>9.2f}",

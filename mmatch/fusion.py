@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres
+from mmatch.ego.descriptor_scale import RunningDescriptorScale
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
 from mmatch.ego.track import TrackConfig, Tracker
 from mmatch.shared import SharedFrame
@@ -52,6 +53,7 @@ class Fuser:
         self.matcher = get_matcher(config.matcher)
         self.aligner = get_aligner(config.aligner)
         self.tracker = Tracker(config.track)
+        self.descriptor_scale = RunningDescriptorScale()
 
     def fuse(self, own: SharedFrame, other: SharedFrame | None,
              context: MatchContext | None = None) -> FusionResult:
@@ -69,6 +71,9 @@ class Fuser:
             match = MatchResult()
         else:
             ctx = context or MatchContext()
+            if ctx.descriptor_scale is None:
+                ctx = replace(ctx, descriptor_scale=self.descriptor_scale.update(
+                    own.vehicle_features, other.vehicle_features))
             match = self.matcher(own, other, replace(ctx, prior_T=predicted, prior_only=quick))
         tracked = match.T_hint is None and len(match.pairs) == 0 and predicted is not None
         if tracked:

@@ -19,6 +19,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
                    help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
     p.add_argument("--jobs", type=int, default=1, help="worker processes")
+    p.add_argument("--descriptor-scale", type=_scale, default=None, metavar="auto|FACTOR",
+                   help="factor on appearance-descriptor distances; auto (default): measured on the "
+                        "folder without labels; 1: as the files have them")
+
+
+def _scale(text: str) -> float | None:
+    if text == "auto":
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto or a positive number, got {text!r}") from None
+    if not 0 < v < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected auto or a positive number, got {text!r}")
+    return v
 
 
 def run(args: argparse.Namespace) -> int:
@@ -28,7 +43,8 @@ def run(args: argparse.Namespace) -> int:
     if not Path(args.folder).is_dir():
         print(f"mmatch eval: error: {args.folder} is not a folder", file=sys.stderr)
         return 2
-    cfg = EvalConfig(matcher=args.matcher, aligner=args.aligner, cav=args.cav)
+    cfg = EvalConfig(matcher=args.matcher, aligner=args.aligner, cav=args.cav,
+                     descriptor_scale=args.descriptor_scale)
     rep, results = evaluate_dir(args.folder, cfg, args.jobs, Progress("eval"))
     for r in results:
         if "rejected" in r:

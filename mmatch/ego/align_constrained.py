@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import AlignResult, MatchResult, descriptor_distance, heading_yaws
+from mmatch.ego.base import AlignResult, MatchResult, heading_yaws
+from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import kabsch2d, se2_to_matrix
@@ -61,7 +62,7 @@ class ConstrainedAligner:
             return AlignResult(None, f"{len(pairs)} matched vehicle(s) and no usable hint")
         allowed = np.zeros((len(A.centres), len(B.centres)), bool)
         allowed[pairs[:, 0], pairs[:, 1]] = True
-        D = descriptor_distance(own.vehicle_features, other.vehicle_features)
+        D = scaled_distance(own.vehicle_features, other.vehicle_features, match.descriptor_scale)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
         Rs, ts = refine_many(A, B, D, bg_own, bg_other, np.stack([r for r, _ in starts]),

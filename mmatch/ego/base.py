@@ -18,11 +18,14 @@ class MatchContext:
     prior_T: T_ego_cav (4x4) predicted from earlier frames (see ego/track.py), or None.
     prior_only: with prior_T, a matcher may skip its global search and only refine the
         prediction (a tracking frame; the fuser asks for a full search regularly).
+    descriptor_scale: factor on descriptor distances for these cameras (see
+        ego/descriptor_scale.py); None: the fuser's running estimate.
     """
 
     gt_box_pairs: np.ndarray | None = None
     prior_T: np.ndarray | None = None
     prior_only: bool = False
+    descriptor_scale: float | None = None
 
 
 @dataclass
@@ -30,11 +33,13 @@ class MatchResult:
     """Co-visible pairs as (own vehicle index, other vehicle index), one-to-one.
 
     T_hint: a coarse CAV -> Ego transform when the matcher found one on the way (4x4), else None.
+    descriptor_scale: the factor the matcher put on descriptor distances (for the aligner).
     """
 
     pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int32))
     scores: np.ndarray = field(default_factory=lambda: np.zeros(0))
     T_hint: np.ndarray | None = None
+    descriptor_scale: float = 1.0
 
 
 @dataclass

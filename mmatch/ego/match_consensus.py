@@ -15,7 +15,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import MatchContext, MatchResult, descriptor_distance, heading_yaws, road_speed_consistency
+from mmatch.ego.base import MatchContext, MatchResult, heading_yaws, road_speed_consistency
+from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import se2_to_matrix
@@ -80,7 +81,8 @@ class ConsensusMatcher:
         A, B = observe(own, cfg.observation), observe(other, cfg.observation)
         if len(A.centres) == 0 or len(B.centres) == 0:
             return MatchResult()
-        D = descriptor_distance(own.vehicle_features, other.vehicle_features)
+        scale = 1.0 if ctx.descriptor_scale is None else ctx.descriptor_scale
+        D = scaled_distance(own.vehicle_features, other.vehicle_features, scale)
         cand = _candidates(D, cfg.candidates_per_vehicle, cfg.desc_gate)
         if ctx.prior_T is not None and ctx.prior_only:
             cand = cand[:0]                   # tracking frame: the prediction is the only hypothesis
@@ -123,7 +125,7 @@ class ConsensusMatcher:
             veto = speed[int(np.argmin(_yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
         pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto, _scores(own, cfg), _scores(other, cfg))
         T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
-        return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T)
+        return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T, descriptor_scale=scale)
 
 
 def _prior_agreement(R: np.ndarray, t: np.ndarray, prior: np.ndarray, cfg: ConsensusConfig) -> np.ndarray:
