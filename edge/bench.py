@@ -23,9 +23,9 @@ def _free_port() -> int:
 
 
 def bench_recorder(frames: int) -> dict:
-    from edge import logreader, logschema
-    from edge.config import LogSection
-    from edge.recorder import Recorder
+    from mmatch.edge import logreader, logschema
+    from mmatch.edge.config import LogSection
+    from mmatch.edge.recorder import Recorder
 
     pts = np.random.default_rng(0).normal(size=(300, 5)).astype(np.float32)
     raw = os.urandom(600)
@@ -45,9 +45,9 @@ def bench_recorder(frames: int) -> dict:
 
 
 def bench_zenoh(messages: int) -> dict:
-    from edge import keys
-    from edge.config import ZenohSection
-    from edge.transport import Transport
+    from mmatch.edge import keys
+    from mmatch.edge.config import ZenohSection
+    from mmatch.edge.transport import Transport
 
     ep = f"tcp/127.0.0.1:{_free_port()}"
     got = threading.Event()

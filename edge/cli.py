@@ -1,4 +1,4 @@
-"""The `mmatch` command line: a thin dispatcher over `edge.commands.*`."""
+"""The `mmatch` command line: a thin dispatcher over `mmatch.edge.commands.*`."""
 
 from __future__ import annotations
 
@@ -11,18 +11,18 @@ import sys
 from mmatch.errors import MMatchError
 
 COMMANDS: dict[str, str] = {
-    "sim": "edge.commands.sim",
-    "eval": "edge.commands.evaluate",
-    "demo": "edge.commands.demo",
-    "egomotion": "edge.commands.egomotion",
-    "bench": "edge.commands.bench",
-    "parse-uart": "edge.commands.parse_uart",
-    "radar-config": "edge.commands.radar_config",
-    "radar-info": "edge.commands.radar_info",
-    "dsp": "edge.commands.dsp",
-    "run": "edge.commands.run",
-    "replay": "edge.commands.replay",
-    "record": "edge.commands.record",
+    "sim": "mmatch.edge.commands.sim",
+    "eval": "mmatch.edge.commands.evaluate",
+    "demo": "mmatch.edge.commands.demo",
+    "egomotion": "mmatch.edge.commands.egomotion",
+    "bench": "mmatch.edge.commands.bench",
+    "parse-uart": "mmatch.edge.commands.parse_uart",
+    "radar-config": "mmatch.edge.commands.radar_config",
+    "radar-info": "mmatch.edge.commands.radar_info",
+    "dsp": "mmatch.edge.commands.dsp",
+    "run": "mmatch.edge.commands.run",
+    "replay": "mmatch.edge.commands.replay",
+    "record": "mmatch.edge.commands.record",
 }
 
 

@@ -22,15 +22,15 @@ from typing import Any
 
 import numpy as np
 
-from edge import keys, logschema
-from edge.config import VehicleConfig
-from edge.health import Notifier, RateCounter, format_status, watchdog_interval
-from edge.logschema import SensorFrame
-from edge.node import Node
-from edge.pipeline import Pipeline
-from edge.sources.base import CameraSource, EndOfStream, RadarSource
-from edge.sources.replay import RECORDED_DETECTIONS
-from edge.transport import KeepNewest
+from mmatch.edge import keys, logschema
+from mmatch.edge.config import VehicleConfig
+from mmatch.edge.health import Notifier, RateCounter, format_status, watchdog_interval
+from mmatch.edge.logschema import SensorFrame
+from mmatch.edge.node import Node
+from mmatch.edge.pipeline import Pipeline
+from mmatch.edge.sources.base import CameraSource, EndOfStream, RadarSource
+from mmatch.edge.sources.replay import RECORDED_DETECTIONS
+from mmatch.edge.transport import KeepNewest
 from mmatch.errors import DeviceError, MMatchError
 from mmatch.types import Detections, RadarFrame
 

@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from edge import keys, logschema
-from edge.config import VehicleConfig
-from edge.logschema import SensorFrame
-from edge.pipeline import Pipeline
+from mmatch.edge import keys, logschema
+from mmatch.edge.config import VehicleConfig
+from mmatch.edge.logschema import SensorFrame
+from mmatch.edge.pipeline import Pipeline
 from mmatch.errors import DecodeError
 from mmatch.types import CameraModel
 

@@ -3,7 +3,7 @@
 * Chunked writing straight to the file descriptor (no user-space buffer): a chunk reaches
   the OS as soon as it closes, and chunks close when full (`chunk_kb`) or at least every
   `flush_s` seconds. A process killed with SIGKILL leaves a file that reads up to its last
-  complete chunk (`edge.logreader`).
+  complete chunk (`mmatch.edge.logreader`).
 * Rotation by size (`rotate_mb`) and age (`rotate_s`); each file is a complete MCAP with
   the effective config as metadata.
 * A free-disk floor: below `raw_floor_mb` raw data (UART bytes, DCA1000 frames) stops;
@@ -27,8 +27,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from edge import logschema
-from edge.config import LogSection
+from mmatch.edge import logschema
+from mmatch.edge.config import LogSection
 from mmatch.errors import DeviceError
 
 log = logging.getLogger(__name__)

@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from edge import logreader, logschema
-from edge.logschema import SensorFrame
+from mmatch.edge import logreader, logschema
+from mmatch.edge.logschema import SensorFrame
 from mmatch.errors import ParseError
 from mmatch.types import RadarFrame
 
@@ -120,7 +120,7 @@ def capture_frames(path: str | Path, *, pace_baud: int | None = None, chunk: int
 
     pace_baud: feed bytes at this line rate (8N1: 10 bits per byte), else as fast as possible.
     """
-    from drivers.ti.reader import TlvReader
+    from mmatch.drivers.ti.reader import TlvReader
 
     reader = TlvReader(on_error="log")
     t0 = time.monotonic()
@@ -147,7 +147,7 @@ def capture_frames(path: str | Path, *, pace_baud: int | None = None, chunk: int
 
 def compare_fused(recorded: list[dict], replayed: list[dict], atol: float = 1e-6) -> dict[str, Any]:
     """Match fused results by seq and compare them without wall-clock fields."""
-    from edge.node import comparable
+    from mmatch.edge.node import comparable
 
     def key(m: dict) -> tuple[int, int]:  # seq restarts with each run; the stamp does not
         return int(m["seq"]), logschema.stamp_key(float(m["stamp"]))
@@ -182,7 +182,7 @@ def _close(a: Any, b: Any, atol: float) -> bool:
 def _replay_config(log_path: str | Path, is_log: bool, config_path: str | None, sets: list[str]) -> Any:
     import tomllib
 
-    from edge import config as cfgmod
+    from mmatch.edge import config as cfgmod
 
     overrides = cfgmod.parse_overrides(sets)
     if config_path:
@@ -206,12 +206,12 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
     """
     import contextlib
 
-    from edge import config as cfgmod
-    from edge.node import Node
-    from edge.pipeline import default_pipeline
-    from edge.recorder import Recorder
-    from edge.sources.base import default_camera
-    from edge.transport import Transport
+    from mmatch.edge import config as cfgmod
+    from mmatch.edge.node import Node
+    from mmatch.edge.pipeline import default_pipeline
+    from mmatch.edge.recorder import Recorder
+    from mmatch.edge.sources.base import default_camera
+    from mmatch.edge.transport import Transport
     from mmatch.errors import DecodeError, MMatchError
 
     path = Path(path)

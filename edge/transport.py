@@ -3,7 +3,7 @@
 Peer mode listens and/or connects on the configured endpoints; client mode connects to
 a `zenohd` router (cfg/zenoh/router.json5). Multicast scouting, gossip and shared memory
 are off unless the config turns them on (LIBRARIES.md section 2: the defaults listen on
-every interface and scout by multicast). Key expressions come from `edge.keys`.
+every interface and scout by multicast). Key expressions come from `mmatch.edge.keys`.
 
 Incoming samples are handed to a callback on a Zenoh thread; a payload on a foreign key
 or one the decoder rejects is dropped and counted, never raised.
@@ -19,8 +19,8 @@ import time
 from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
-from edge import keys
-from edge.config import ZenohSection
+from mmatch.edge import keys
+from mmatch.edge.config import ZenohSection
 from mmatch.errors import ConfigError, DecodeError, DeviceError
 
 log = logging.getLogger(__name__)

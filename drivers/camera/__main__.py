@@ -1,4 +1,4 @@
-"""Camera tools: `python -m drivers.camera COMMAND ...` (a program: it prints; the library logs).
+"""Camera tools: `python -m mmatch.drivers.camera COMMAND ...` (a program: it prints; the library logs).
 
 check-model MODEL [--kind K] [--input-size W H]
     load an ONNX detector and check its layout
@@ -26,8 +26,8 @@ from mmatch.errors import MMatchError
 
 
 def _detector_config(model: str, kind: str | None, input_size: list[int] | None):
-    from drivers.camera.detector import DetectorConfig
-    from drivers.camera.sources import _sidecar
+    from mmatch.drivers.camera.detector import DetectorConfig
+    from mmatch.drivers.camera.sources import _sidecar
 
     settings = _sidecar(model)
     settings["model"] = model
@@ -39,7 +39,7 @@ def _detector_config(model: str, kind: str | None, input_size: list[int] | None)
 
 
 def _check_model(a) -> int:
-    from drivers.camera.detector import OnnxDetector
+    from mmatch.drivers.camera.detector import OnnxDetector
 
     det = OnnxDetector(_detector_config(a.model, a.kind, a.input_size))
     print(
@@ -52,9 +52,9 @@ def _check_model(a) -> int:
 def _detect(a) -> int:
     import cv2
 
-    from drivers.camera.calibration import load_calibration
-    from drivers.camera.detector import OnnxDetector
-    from drivers.camera.pipeline import DetectionStage
+    from mmatch.drivers.camera.calibration import load_calibration
+    from mmatch.drivers.camera.detector import OnnxDetector
+    from mmatch.drivers.camera.pipeline import DetectionStage
 
     det = OnnxDetector(_detector_config(a.model, a.kind, a.input_size))
     stage = DetectionStage(det.detect, load_calibration(a.calibration), radar_height=a.radar_height)
@@ -80,7 +80,7 @@ def _detect(a) -> int:
 def _quantize(a) -> int:
     import cv2
 
-    from drivers.camera.quantize import quantize_detector
+    from mmatch.drivers.camera.quantize import quantize_detector
 
     images = [cv2.imread(p, cv2.IMREAD_COLOR) for p in a.images] if a.images else None
     cfg = _detector_config(a.src, a.kind, a.input_size) if images else None
@@ -91,7 +91,7 @@ def _quantize(a) -> int:
 def _extrinsic(a) -> int:
     import dataclasses
 
-    from drivers.camera.calibration import estimate_T_cam_radar, load_calibration, save_calibration
+    from mmatch.drivers.camera.calibration import estimate_T_cam_radar, load_calibration, save_calibration
 
     calib = load_calibration(a.calibration)
     data = np.loadtxt(a.pairs, delimiter=",", comments="#", ndmin=2)
@@ -114,8 +114,8 @@ def _extrinsic(a) -> int:
 
 
 def _oak_calibration(a) -> int:
-    from drivers.camera.calibration import load_calibration, save_calibration
-    from drivers.camera.sources.oak import calibration_from_oak, import_depthai
+    from mmatch.drivers.camera.calibration import load_calibration, save_calibration
+    from mmatch.drivers.camera.sources.oak import calibration_from_oak, import_depthai
 
     dai = import_depthai()
     T = (
@@ -142,9 +142,9 @@ def _oak_calibration(a) -> int:
 
 
 def _oak_check(a) -> int:
-    from drivers.camera.calibration import load_calibration, validate
-    from drivers.camera.sources import _sidecar
-    from drivers.camera.sources.oak import OakCamera, OakConfig
+    from mmatch.drivers.camera.calibration import load_calibration, validate
+    from mmatch.drivers.camera.sources import _sidecar
+    from mmatch.drivers.camera.sources.oak import OakCamera, OakConfig
 
     settings = _sidecar(a.model)
     settings["model"] = a.model
@@ -166,7 +166,7 @@ def _oak_check(a) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog="python -m drivers.camera",
+        prog="python -m mmatch.drivers.camera",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -92,11 +92,11 @@ def run(quick: bool = False) -> dict:
     """Time the camera hot paths; returns a flat dict of numbers (ms unless named otherwise)."""
     import cv2
 
-    from drivers.camera.calibration import validate
-    from drivers.camera.decode import decode_centernet, decode_yolov5, decode_yolov8, suppress
-    from drivers.camera.descriptor import hsv_descriptor
-    from drivers.camera.detector import Letterbox
-    from drivers.camera.pipeline import DEFAULT_DESCRIPTOR_MAX_PIXELS, DetectionStage
+    from mmatch.drivers.camera.calibration import validate
+    from mmatch.drivers.camera.decode import decode_centernet, decode_yolov5, decode_yolov8, suppress
+    from mmatch.drivers.camera.descriptor import hsv_descriptor
+    from mmatch.drivers.camera.detector import Letterbox
+    from mmatch.drivers.camera.pipeline import DEFAULT_DESCRIPTOR_MAX_PIXELS, DetectionStage
 
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)

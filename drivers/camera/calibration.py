@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.camera.depth import GroundPlane
-from drivers.camera.errors import CalibrationError
+from mmatch.drivers.camera.depth import GroundPlane
+from mmatch.drivers.camera.errors import CalibrationError
 from mmatch.errors import MMatchError
 from mmatch.types import CameraModel
 

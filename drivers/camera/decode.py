@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.camera.nms import nms
+from mmatch.drivers.camera.nms import nms
 
 KINDS = ("yolov5", "yolov8", "centernet")
 

@@ -5,7 +5,7 @@ its input (one NCHW 3-channel image tensor) and, with a dry run on a blank image
 layout against `kind`; any mismatch fails at start with a `ModelError` naming the file and
 what was expected. `detect(image_bgr)` returns the kept boxes in *image* pixels.
 
-INT8 models (from `drivers.camera.quantize` or any QDQ/QOperator export) run the same way.
+INT8 models (from `mmatch.drivers.camera.quantize` or any QDQ/QOperator export) run the same way.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.camera.decode import (
+from mmatch.drivers.camera.decode import (
     KINDS,
     Decoded,
     decode_centernet,
@@ -25,7 +25,7 @@ from drivers.camera.decode import (
     decode_yolov8,
     suppress,
 )
-from drivers.camera.errors import ModelError
+from mmatch.drivers.camera.errors import ModelError
 from mmatch.errors import ConfigError
 
 log = logging.getLogger(__name__)

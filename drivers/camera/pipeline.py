@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.camera.calibration import Calibration
-from drivers.camera.decode import Decoded
-from drivers.camera.depth import DepthConfig, GroundPlane, ground_plane_depth, model_depth_sigma
-from drivers.camera.descriptor import hsv_descriptor
+from mmatch.drivers.camera.calibration import Calibration
+from mmatch.drivers.camera.decode import Decoded
+from mmatch.drivers.camera.depth import DepthConfig, GroundPlane, ground_plane_depth, model_depth_sigma
+from mmatch.drivers.camera.descriptor import hsv_descriptor
 from mmatch.types import DESCRIPTOR_DIM, Detections
 
 log = logging.getLogger(__name__)
@@ -149,7 +149,7 @@ class DetectionStage:
         if image is not None:
             feats = hsv_descriptor(image, dec.boxes, self.descriptor_max_pixels)
         else:
-            from drivers.camera.descriptor import UNIFORM_DESCRIPTOR
+            from mmatch.drivers.camera.descriptor import UNIFORM_DESCRIPTOR
 
             feats = np.tile(UNIFORM_DESCRIPTOR, (m, 1))
         und = self.calibration.undistort_boxes(dec.boxes[:, :4])

@@ -12,7 +12,7 @@ Two modes:
   int8 with ranges calibrated on representative BGR images (a few dozen frames of the user's
   own camera), preprocessed exactly as the detector does. The usual choice for conv detectors.
 
-Command line: `python -m drivers.camera quantize yolov8n.onnx yolov8n.int8.onnx [--images ...]`.
+Command line: `python -m mmatch.drivers.camera quantize yolov8n.onnx yolov8n.int8.onnx [--images ...]`.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.camera.errors import ModelError
+from mmatch.drivers.camera.errors import ModelError
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +65,7 @@ def quantize_detector(
         )
         log.info("quantized %s -> %s (dynamic int8)", src, dst)
         return dst
-    from drivers.camera.detector import DetectorConfig, OnnxDetector
+    from mmatch.drivers.camera.detector import DetectorConfig, OnnxDetector
 
     det = OnnxDetector(detector_config or DetectorConfig(model=str(src)))
     inputs = [{det._input_name: det.preprocess(img)[0]} for img in calibration_images]

@@ -17,8 +17,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from drivers.camera.errors import EndOfStream
-from drivers.camera.sources.base import CameraSource
+from mmatch.drivers.camera.errors import EndOfStream
+from mmatch.drivers.camera.sources.base import CameraSource
 from mmatch.errors import ConfigError, MMatchError
 from mmatch.types import CameraModel, Detections
 

@@ -55,7 +55,7 @@ def _free_udp_port() -> int:
 
 
 def bench_dsp(frames: int) -> dict:
-    from drivers.ti.cfg import parse_cfg
+    from mmatch.drivers.ti.cfg import parse_cfg
 
     from .dsp import make_dsp
     from .layout import cube_to_raw, raw_to_cube

@@ -11,8 +11,8 @@ import time
 
 import numpy as np
 
-from drivers.ti.reader import TlvReader
-from drivers.ti.writer import encode_frame
+from mmatch.drivers.ti.reader import TlvReader
+from mmatch.drivers.ti.writer import encode_frame
 
 
 def _stream(n_frames: int, fmt: str, seed: int = 0) -> tuple[bytes, int]:

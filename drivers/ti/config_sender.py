@@ -4,7 +4,7 @@ Each command line is written with a newline; the device echoes it, answers ``Don
 ``Error ...``) and prints its prompt (``mmwDemo:/>``). A line succeeds on ``Done`` or on the
 prompt after the echo; ``Error`` (or "not recognized") stops with `RadarConfigError`, and no
 answer within the timeout stops with `DeviceTimeout`; both name ``file:line`` and the line.
-The cfg is parsed and validated (`drivers.ti.cfg.parse_cfg`) before the port is touched.
+The cfg is parsed and validated (`mmatch.drivers.ti.cfg.parse_cfg`) before the port is touched.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from drivers.ti.cfg import RadarCfg, load_cfg
+from mmatch.drivers.ti.cfg import RadarCfg, load_cfg
 from mmatch.errors import DeviceError, DeviceTimeout
 
 log = logging.getLogger(__name__)

@@ -39,15 +39,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from drivers.ti.header import MAGIC, FrameHeader, HeaderFormat, candidate_formats, version_major
-from drivers.ti.tlv import (
+from mmatch.drivers.ti.header import MAGIC, FrameHeader, HeaderFormat, candidate_formats, version_major
+from mmatch.drivers.ti.tlv import (
     OOB_TLVS, PC3D_TLVS, POINT_F32, CompressedPoints, DetectedPoints, DetectedPointsQ,
     ExtDetectedPoints, RawTlv, SideInfo, TlvMessage)
 from mmatch.errors import DecodeError
 from mmatch.types import RadarFrame
 
 if TYPE_CHECKING:
-    from drivers.ti.cfg import ChirpParams
+    from mmatch.drivers.ti.cfg import ChirpParams
 
 MAX_PACKET_LEN = 4 * 1024 * 1024
 """Largest totalPacketLen accepted (bytes); a longer one is a corrupted length."""

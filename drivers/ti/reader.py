@@ -23,16 +23,16 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
-from drivers.ti.decoder import (
+from mmatch.drivers.ti.decoder import (
     MAX_PACKET_LEN, NEED_MORE, OK, REJECT, DecodeResult, TiPacket, decode_frame)
-from drivers.ti.header import MAGIC, HeaderFormat
-from drivers.ti.tlv import RawTlv
+from mmatch.drivers.ti.header import MAGIC, HeaderFormat
+from mmatch.drivers.ti.tlv import RawTlv
 from mmatch.errors import ConfigError, DecodeError
 from mmatch.types import RadarFrame
 
 if TYPE_CHECKING:
-    from drivers.ti.cfg import ChirpParams
-    from drivers.ti.sources import ByteSource
+    from mmatch.drivers.ti.cfg import ChirpParams
+    from mmatch.drivers.ti.sources import ByteSource
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ line and answers ``Done`` and the ``mmwDemo:/>`` prompt; an unknown command gets
 recognized", a wrong argument count ``Error -1``, and ``sensorStart`` of a cfg that
 `parse_cfg` refuses ``Error -1``), then read TLV packets from `data_port`: one per frame
 period of the cfg (divided by `speed`) with the points of ``points_fn(frame_number)``,
-written with `drivers.ti.writer.encode_frame` in format `fmt`. ``sensorStop`` stops the
+written with `mmatch.drivers.ti.writer.encode_frame` in format `fmt`. ``sensorStop`` stops the
 stream; ``sensorStart`` resumes it (frame numbers keep counting, like the firmware).
 
 A pty, like a UART, does not wait for a reader: bytes that do not fit (nobody reading)
@@ -28,8 +28,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from drivers.ti.cfg import KNOWN_COMMANDS, ChirpParams, check_command, parse_cfg
-from drivers.ti.writer import encode_frame
+from mmatch.drivers.ti.cfg import KNOWN_COMMANDS, ChirpParams, check_command, parse_cfg
+from mmatch.drivers.ti.writer import encode_frame
 from mmatch.errors import ConfigError
 
 log = logging.getLogger(__name__)

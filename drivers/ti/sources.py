@@ -27,7 +27,7 @@ from pathlib import Path
 from types import TracebackType
 from urllib.parse import parse_qs
 
-from drivers.ti.header import MAGIC
+from mmatch.drivers.ti.header import MAGIC
 from mmatch.errors import ConfigError, DeviceError
 
 log = logging.getLogger(__name__)

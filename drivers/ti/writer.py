@@ -31,15 +31,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from drivers.ti.decoder import SEGMENT, doppler_from_index, spherical_to_points
-from drivers.ti.header import FrameHeader, HeaderFormat
-from drivers.ti.tlv import (
+from mmatch.drivers.ti.decoder import SEGMENT, doppler_from_index, spherical_to_points
+from mmatch.drivers.ti.header import FrameHeader, HeaderFormat
+from mmatch.drivers.ti.tlv import (
     COMPRESSED_POINT, POINT_F32, POINT_Q, SIDE_INFO, CompressedPoints, DetectedPoints,
     DetectedPointsQ, Pc3dCompressedPoints, SideInfo, TlvMessage)
 from mmatch.errors import MMatchError
 
 if TYPE_CHECKING:
-    from drivers.ti.cfg import ChirpParams
+    from mmatch.drivers.ti.cfg import ChirpParams
 
 
 class EncodeError(MMatchError, ValueError):

@@ -12,11 +12,11 @@ HELP = "run the speed benchmarks (UART reader, DSP, camera, pipeline) and write 
 
 # name -> "module:function"; each function takes (quick: bool) and returns a flat dict of numbers.
 SUITES: dict[str, str] = {
-    "uart": "drivers.ti.bench:run",
-    "dsp": "drivers.dca1000.bench:run",
-    "camera": "drivers.camera.bench:run",
+    "uart": "mmatch.drivers.ti.bench:run",
+    "dsp": "mmatch.drivers.dca1000.bench:run",
+    "camera": "mmatch.drivers.camera.bench:run",
     "pipeline": "mmatch.bench:run",
-    "edge": "edge.bench:run",
+    "edge": "mmatch.edge.bench:run",
 }
 
 

@@ -19,7 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from edge.commands.progress import Progress
+    from mmatch.edge.commands.progress import Progress
     from mmatch.bev_plot import draw_bev
     from mmatch.cav.process import process_view
     from mmatch.codec import decode, encode

@@ -47,11 +47,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from drivers.dca1000.antenna import LAYOUTS
-    from drivers.dca1000.dsp import make_dsp
-    from drivers.dca1000.layout import raw_to_cube
-    from drivers.dca1000.rawfile import RawCapture
-    from drivers.ti.cfg import load_cfg
+    from mmatch.drivers.dca1000.antenna import LAYOUTS
+    from mmatch.drivers.dca1000.dsp import make_dsp
+    from mmatch.drivers.dca1000.layout import raw_to_cube
+    from mmatch.drivers.dca1000.rawfile import RawCapture
+    from mmatch.drivers.ti.cfg import load_cfg
     from mmatch.errors import ConfigError
 
     cfg = load_cfg(args.cfg)

@@ -24,7 +24,7 @@ def _fmt(x) -> str:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from edge.commands.progress import Progress
+    from mmatch.edge.commands.progress import Progress
     from mmatch.cav.config import CavConfig
     from mmatch.cav.radar_eval import evaluate_radar_files
 

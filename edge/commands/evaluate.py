@@ -37,7 +37,7 @@ def _scale(text: str) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from edge.commands.progress import Progress
+    from mmatch.edge.commands.progress import Progress
     from mmatch.evaluate import EvalConfig, evaluate_dir, format_table
 
     if not Path(args.folder).is_dir():

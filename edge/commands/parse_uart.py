@@ -24,9 +24,9 @@ def summarise(path: str | Path, *, cfg: str | None = None, on_error: str = "skip
     """The `--json` document: {"frames", "frame_numbers", "points_per_frame", "bytes_skipped",
     "rejected": [{"offset", "reason"}], "tlv_types": {"<type>": n}, "first_point": {...}|None}
     plus, under "_stats", the reader counters (not written to the JSON)."""
-    from drivers.ti.cfg import load_cfg
-    from drivers.ti.reader import TlvReader
-    from drivers.ti.sources import FileSource
+    from mmatch.drivers.ti.cfg import load_cfg
+    from mmatch.drivers.ti.reader import TlvReader
+    from mmatch.drivers.ti.sources import FileSource
 
     chirp = load_cfg(cfg).chirp if cfg else None
     frame_numbers: list[int] = []

@@ -21,8 +21,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drivers.ti.cfg import load_cfg
-    from drivers.ti.config_sender import send_cfg
+    from mmatch.drivers.ti.cfg import load_cfg
+    from mmatch.drivers.ti.config_sender import send_cfg
 
     cfg = load_cfg(args.cfg)  # refuses a bad cfg, naming the line, before the port is opened
     for w in cfg.warnings:
@@ -41,8 +41,8 @@ def check_data_port(port: str, baud: int, seconds: float, chirp=None) -> dict:  
     """Listen on the data port; print frames/s and skipped bytes; DeviceTimeout if no frame."""
     import time
 
-    from drivers.ti.reader import TlvReader
-    from drivers.ti.sources import SerialSource
+    from mmatch.drivers.ti.reader import TlvReader
+    from mmatch.drivers.ti.sources import SerialSource
     from mmatch.errors import DeviceTimeout
 
     with SerialSource(port, baudrate=baud, timeout=0.05) as src:

@@ -21,7 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import asdict
 
-    from drivers.ti.cfg import VEHICLE_MIN_VELOCITY_MPS, load_cfg, vehicle_warnings
+    from mmatch.drivers.ti.cfg import VEHICLE_MIN_VELOCITY_MPS, load_cfg, vehicle_warnings
 
     cfg = load_cfg(args.cfg)
     c = cfg.chirp

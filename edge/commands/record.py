@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from edge.commands.run import add_common
+from mmatch.edge.commands.run import add_common
 
 HELP = "record sensors only (raw UART/DCA1000 data, points, detections) to MCAP"
 
@@ -14,7 +14,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from edge.commands.run import load_config, run_service
+    from mmatch.edge.commands.run import load_config, run_service
     from mmatch.errors import ConfigError
 
     cfg = load_config(args)

@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from edge.replay import replay
+    from mmatch.edge.replay import replay
     from mmatch.errors import ConfigError
 
     if args.speed <= 0:

@@ -24,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def parse_overrides(items: list[str]) -> dict:
     """--set items as a nested dict (see edge.config.parse_overrides)."""
-    from edge.config import parse_overrides as parse
+    from mmatch.edge.config import parse_overrides as parse
 
     return parse(items)
 
@@ -37,7 +37,7 @@ def service_logging(args: argparse.Namespace) -> None:
 
 
 def load_config(args: argparse.Namespace, extra: dict | None = None):
-    from edge import config
+    from mmatch.edge import config
 
     service_logging(args)
 
@@ -57,13 +57,13 @@ def run_service(cfg, *, duration: float | None = None, process: bool = True) -> 
     import signal
     import threading
 
-    from edge import config as config_mod
-    from edge.health import Notifier
-    from edge.loop import VehicleLoop
-    from edge.pipeline import default_pipeline
-    from edge.recorder import Recorder
-    from edge.sources import open_camera, open_radar
-    from edge.transport import Transport
+    from mmatch.edge import config as config_mod
+    from mmatch.edge.health import Notifier
+    from mmatch.edge.loop import VehicleLoop
+    from mmatch.edge.pipeline import default_pipeline
+    from mmatch.edge.recorder import Recorder
+    from mmatch.edge.sources import open_camera, open_radar
+    from mmatch.edge.transport import Transport
 
     pipeline = default_pipeline(need_fuse=cfg.is_ego, track_max_age_s=cfg.ego.track_max_age_s) if process else None
     notifier = Notifier()

@@ -18,7 +18,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from edge.commands.progress import Progress
+    from mmatch.edge.commands.progress import Progress
     from mmatch.sim.generate import generate
     from mmatch.sim.realism import check_targets, realism_figures
 

@@ -13,21 +13,21 @@ from typing import TYPE_CHECKING
 from mmatch.errors import ConfigError
 
 if TYPE_CHECKING:
-    from edge.config import VehicleConfig
-    from edge.sources.base import CameraSource, RadarSource
+    from mmatch.edge.config import VehicleConfig
+    from mmatch.edge.sources.base import CameraSource, RadarSource
 
 RADAR_BACKENDS: dict[str, str] = {
-    "uart": "edge.sources.uart:UartRadar",
-    "dca1000": "edge.sources.dca1000:Dca1000Radar",
-    "replay": "edge.sources.replay:ReplayRadar",
-    "sim": "edge.sources.sim:SimRadar",
+    "uart": "mmatch.edge.sources.uart:UartRadar",
+    "dca1000": "mmatch.edge.sources.dca1000:Dca1000Radar",
+    "replay": "mmatch.edge.sources.replay:ReplayRadar",
+    "sim": "mmatch.edge.sources.sim:SimRadar",
 }
 CAMERA_BACKENDS: dict[str, str] = {
-    "opencv": "edge.sources.camera:OpenCvCamera",
-    "oak": "edge.sources.camera:OakCamera",
-    "replay": "edge.sources.replay:ReplayCamera",
-    "sim": "edge.sources.sim:SimCamera",
-    "none": "edge.sources.base:NoCamera",
+    "opencv": "mmatch.edge.sources.camera:OpenCvCamera",
+    "oak": "mmatch.edge.sources.camera:OakCamera",
+    "replay": "mmatch.edge.sources.replay:ReplayCamera",
+    "sim": "mmatch.edge.sources.sim:SimCamera",
+    "none": "mmatch.edge.sources.base:NoCamera",
 }
 
 

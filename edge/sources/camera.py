@@ -11,8 +11,8 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from edge.config import VehicleConfig
-from edge.sources.base import CameraSource, EndOfStream
+from mmatch.edge.config import VehicleConfig
+from mmatch.edge.sources.base import CameraSource, EndOfStream
 from mmatch.types import CameraModel, Detections
 
 log = logging.getLogger(__name__)
@@ -22,7 +22,7 @@ class _DriverCamera(CameraSource):
     backend = ""
 
     def __init__(self, cfg: VehicleConfig, *, radar: Any = None, **kw: Any) -> None:
-        from drivers.camera.sources import open_camera
+        from mmatch.drivers.camera.sources import open_camera
 
         height = getattr(radar, "radar_height", cfg.radar.height_m)
         self._cam = open_camera(self.backend, device=cfg.camera.device, calibration=cfg.camera.calibration,
@@ -38,7 +38,7 @@ class _DriverCamera(CameraSource):
         self._cam.open()
 
     def read(self, timeout: float) -> Detections | None:
-        from drivers.camera.errors import EndOfStream as DriverEnd
+        from mmatch.drivers.camera.errors import EndOfStream as DriverEnd
 
         try:
             return self._cam.read(timeout)

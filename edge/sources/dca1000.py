@@ -15,10 +15,10 @@ import threading
 import time
 from typing import Any
 
-from edge import logschema
-from edge.config import VehicleConfig
-from edge.sources.base import RadarSource
-from edge.transport import KeepNewest
+from mmatch.edge import logschema
+from mmatch.edge.config import VehicleConfig
+from mmatch.edge.sources.base import RadarSource
+from mmatch.edge.transport import KeepNewest
 from mmatch.errors import DeviceError
 from mmatch.types import RadarFrame
 
@@ -29,8 +29,8 @@ class Dca1000Radar(RadarSource):
     raw_topic = logschema.RAW_DCA
 
     def __init__(self, cfg: VehicleConfig, **kw: Any) -> None:
-        from drivers.dca1000.dsp import make_dsp
-        from drivers.ti.cfg import load_cfg
+        from mmatch.drivers.dca1000.dsp import make_dsp
+        from mmatch.drivers.ti.cfg import load_cfg
 
         self.cfg = cfg
         self.radar_cfg = load_cfg(cfg.radar.cfg)
@@ -46,9 +46,9 @@ class Dca1000Radar(RadarSource):
         self.radar_height = cfg.radar.height_m
 
     def open(self) -> None:
-        from drivers.dca1000.assembler import FrameAssembler
-        from drivers.dca1000.control import Dca1000Control
-        from drivers.dca1000.receiver import DataReceiver
+        from mmatch.drivers.dca1000.assembler import FrameAssembler
+        from mmatch.drivers.dca1000.control import Dca1000Control
+        from mmatch.drivers.dca1000.receiver import DataReceiver
 
         r = self.cfg.radar
         self._stop.clear()
@@ -79,7 +79,7 @@ class Dca1000Radar(RadarSource):
                 self._error = exc
 
     def read(self, timeout: float) -> RadarFrame | None:
-        from drivers.dca1000.layout import raw_to_cube
+        from mmatch.drivers.dca1000.layout import raw_to_cube
 
         if self._error is not None:
             err, self._error = self._error, None

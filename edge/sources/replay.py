@@ -14,11 +14,11 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
-from edge import logreader
-from edge.config import VehicleConfig
-from edge.logschema import camera_from_meta
-from edge.replay import Pacer, capture_frames, log_events, log_metadata
-from edge.sources.base import CameraSource, EndOfStream, RadarSource, default_camera
+from mmatch.edge import logreader
+from mmatch.edge.config import VehicleConfig
+from mmatch.edge.logschema import camera_from_meta
+from mmatch.edge.replay import Pacer, capture_frames, log_events, log_metadata
+from mmatch.edge.sources.base import CameraSource, EndOfStream, RadarSource, default_camera
 from mmatch.errors import MMatchError
 from mmatch.types import CameraModel, Detections, RadarFrame
 

@@ -13,9 +13,9 @@ import logging
 import math
 import time
 
-from edge.config import VehicleConfig
-from edge.sources.base import CameraSource, RadarSource
-from edge.transport import KeepNewest
+from mmatch.edge.config import VehicleConfig
+from mmatch.edge.sources.base import CameraSource, RadarSource
+from mmatch.edge.transport import KeepNewest
 from mmatch.types import CameraModel, Detections, RadarFrame
 
 log = logging.getLogger(__name__)

@@ -1,7 +1,7 @@
 """TI radar on a serial data port (921600 8N1): raw bytes -> TI streaming reader -> frames.
 
 The bytes are handed to `raw_sink` (the field log) as they arrive, then to
-`drivers.ti.reader.TlvReader`, which resynchronises on junk and counts rejects. A port
+`mmatch.drivers.ti.reader.TlvReader`, which resynchronises on junk and counts rejects. A port
 that disappears (USB unplug) raises `DeviceError`; the loop reopens it, and the reader
 state starts fresh (a frame cut by the unplug is dropped and counted).
 Optionally the chirp profile is sent over the CLI port at open. A frame's stamp is its
@@ -15,8 +15,8 @@ import time
 from collections import deque
 from typing import Any
 
-from edge.config import VehicleConfig
-from edge.sources.base import RadarSource
+from mmatch.edge.config import VehicleConfig
+from mmatch.edge.sources.base import RadarSource
 from mmatch.errors import DeviceError
 from mmatch.types import RadarFrame
 
@@ -36,14 +36,14 @@ class UartRadar(RadarSource):
         self._frames = 0
         self.radar_cfg = None
         if cfg.radar.cfg:  # a bad profile fails at start, naming the line, before anything is sent
-            from drivers.ti.cfg import load_cfg
+            from mmatch.drivers.ti.cfg import load_cfg
 
             self.radar_cfg = load_cfg(cfg.radar.cfg)
 
     def open(self) -> None:
         import serial
 
-        from drivers.ti.reader import TlvReader
+        from mmatch.drivers.ti.reader import TlvReader
 
         if self.cfg.radar.cli_port and self.cfg.radar.cfg:
             self._configure()
@@ -60,7 +60,7 @@ class UartRadar(RadarSource):
     def _configure(self) -> None:
         """Send the chirp profile over the CLI port (again after every reopen: a replugged
         radar has rebooted unconfigured)."""
-        from drivers.ti.config_sender import send_cfg
+        from mmatch.drivers.ti.config_sender import send_cfg
 
         send_cfg(self.cfg.radar.cli_port, self.radar_cfg)
         log.info("radar configured over %s with %s", self.cfg.radar.cli_port, self.cfg.radar.cfg)

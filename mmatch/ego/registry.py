@@ -7,13 +7,13 @@ import importlib
 from mmatch.errors import ConfigError
 
 MATCHERS: dict[str, str] = {
-    "oracle": "mmatch.ego.match_oracle:OracleMatcher",
-    "consensus": "mmatch.ego.match_consensus:ConsensusMatcher",
+    "oracle": "mmatch.ego.match.oracle:OracleMatcher",
+    "consensus": "mmatch.ego.match.consensus:ConsensusMatcher",
 }
 ALIGNERS: dict[str, str] = {
-    "centroid-icp": "mmatch.ego.align_centroid_icp:CentroidICPAligner",
-    "anchored-icp": "mmatch.ego.align_anchored:AnchoredICPAligner",
-    "constrained": "mmatch.ego.align_constrained:ConstrainedAligner",
+    "centroid-icp": "mmatch.ego.align.centroid_icp:CentroidICPAligner",
+    "anchored-icp": "mmatch.ego.align.anchored:AnchoredICPAligner",
+    "constrained": "mmatch.ego.align.constrained:ConstrainedAligner",
 }
 DEFAULT_MATCHER = "consensus"
 DEFAULT_ALIGNER = "constrained"

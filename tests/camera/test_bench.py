@@ -1,6 +1,6 @@
 import numpy as np
 
-from drivers.camera.bench import run
+from mmatch.drivers.camera.bench import run
 
 
 def test_quick_bench_returns_flat_numbers():

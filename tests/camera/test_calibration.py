@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.camera.calibration import (
+from mmatch.drivers.camera.calibration import (
     Calibration,
     EstimationError,
     dumps_calibration,
@@ -13,7 +13,7 @@ from drivers.camera.calibration import (
     project_radar,
     validate,
 )
-from drivers.camera.errors import CalibrationError
+from mmatch.drivers.camera.errors import CalibrationError
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "cfg" / "camera" / "example_calibration.toml"
 GOOD = EXAMPLE.read_text()
@@ -29,7 +29,7 @@ def test_example_file_loads_and_round_trips(tmp_path):
     c = load_calibration(EXAMPLE)
     assert c.image_size == (1280, 720) and c.K[0, 0] == 800.0 and c.dist.shape == (5,)
     assert c.ground.camera_height == 1.10 and c.ground.pitch_deg == 2.0
-    from drivers.camera.depth import GroundPlane
+    from mmatch.drivers.camera.depth import GroundPlane
 
     derived = GroundPlane.from_extrinsic(c.T_cam_radar, radar_height=1.0)
     assert derived.pitch_deg == pytest.approx(
@@ -196,7 +196,7 @@ def test_estimate_needs_enough_pairs():
 def test_extrinsic_from_a_recording_with_a_rough_start():
     """Frames of vehicle centroids + boxes (with clutter: false boxes, vehicles without a box),
     a nominal mounting 2 deg and 15 cm off: pairing and estimation converge to the truth."""
-    from drivers.camera.calibration import collect_pairs, estimate_T_cam_radar_from_recording
+    from mmatch.drivers.camera.calibration import collect_pairs, estimate_T_cam_radar_from_recording
 
     c = load_calibration(EXAMPLE)
     rng = np.random.default_rng(7)

@@ -4,8 +4,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from drivers.camera.decode import decode_centernet, decode_yolov5, decode_yolov8, suppress
-from drivers.camera.nms import box_iou, nms
+from mmatch.drivers.camera.decode import decode_centernet, decode_yolov5, decode_yolov8, suppress
+from mmatch.drivers.camera.nms import box_iou, nms
 
 
 def _xyxy_to_cxcywh(b):
@@ -155,7 +155,7 @@ def test_nms_matches_bruteforce_on_random_boxes():
 
 
 def test_nms_matrix_and_loop_paths_agree(monkeypatch):
-    import drivers.camera.nms as nms_mod
+    import mmatch.drivers.camera.nms as nms_mod
 
     rng = np.random.default_rng(4)
     xy = rng.uniform(0, 200, (300, 2))

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from drivers.camera.depth import DepthConfig, GroundPlane, ground_plane_depth, model_depth_sigma
+from mmatch.drivers.camera.depth import DepthConfig, GroundPlane, ground_plane_depth, model_depth_sigma
 
 K = np.array([[800.0, 0, 640], [0, 800.0, 360], [0, 0, 1]])
 

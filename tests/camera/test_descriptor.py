@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from drivers.camera.descriptor import (
+from mmatch.drivers.camera.descriptor import (
     HUE_BINS,
     SAT_BINS,
     UNIFORM_DESCRIPTOR,

@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 
-from drivers.camera.calibration import validate
-from drivers.camera.depth import GroundPlane
-from drivers.camera.detector import DetectorConfig, OnnxDetector
-from drivers.camera.errors import ModelError
-from drivers.camera.pipeline import DetectionStage
+from mmatch.drivers.camera.calibration import validate
+from mmatch.drivers.camera.depth import GroundPlane
+from mmatch.drivers.camera.detector import DetectorConfig, OnnxDetector
+from mmatch.drivers.camera.errors import ModelError
+from mmatch.drivers.camera.pipeline import DetectionStage
 from mmatch.errors import ConfigError
 
 from . import onnx_builder as ob
@@ -254,7 +254,7 @@ def test_identity_model_feeds_raw_output_through_decoder(tmp_path):
     raw = np.zeros((1, 12, 50), np.float32)
     raw[0, :4, 7] = (50, 60, 20, 10)
     raw[0, 4 + 3, 7] = 0.8
-    from drivers.camera.decode import decode_yolov8
+    from mmatch.drivers.camera.decode import decode_yolov8
 
     dec = decode_yolov8(s.run(None, {"raw": raw})[0], 0.5)
     np.testing.assert_allclose(dec.boxes, [[40, 55, 60, 65]])

@@ -12,9 +12,9 @@ import pytest
 
 dai = pytest.importorskip("depthai")
 
-from drivers.camera.calibration import validate  # noqa: E402
-from drivers.camera.errors import CameraUnavailable, ModelError  # noqa: E402
-from drivers.camera.sources.oak import (  # noqa: E402
+from mmatch.drivers.camera.calibration import validate  # noqa: E402
+from mmatch.drivers.camera.errors import CameraUnavailable, ModelError  # noqa: E402
+from mmatch.drivers.camera.sources.oak import (  # noqa: E402
     OakCamera,
     OakConfig,
     OakModel,
@@ -267,7 +267,7 @@ def test_oak_camera_read_pairs_frames_and_reports_loss(tmp_path, monkeypatch):
     )
     frames = FakeQueue([FakeFrame(5, red), FakeFrame(6, np.zeros((H // 2, W // 2, 3), np.uint8))])
     pipe = FakePipeline()
-    import drivers.camera.sources.oak as oak
+    import mmatch.drivers.camera.sources.oak as oak
 
     monkeypatch.setattr(oak, "build_oak_pipeline", lambda *a, **k: oak.OakQueues(dets, frames))
     cam = OakCamera(
@@ -289,8 +289,8 @@ def test_oak_camera_read_pairs_frames_and_reports_loss(tmp_path, monkeypatch):
 
 
 def test_calibration_from_factory_handler(tmp_path):
-    from drivers.camera.calibration import dumps_calibration, load_calibration
-    from drivers.camera.sources.oak import calibration_from_oak
+    from mmatch.drivers.camera.calibration import dumps_calibration, load_calibration
+    from mmatch.drivers.camera.sources.oak import calibration_from_oak
 
     h = dai.CalibrationHandler()
     h.setCameraIntrinsics(
@@ -310,7 +310,7 @@ def test_calibration_from_factory_handler(tmp_path):
 
 
 def test_frames_waiting_for_detections_are_bounded(tmp_path, monkeypatch):
-    import drivers.camera.sources.oak as oak
+    import mmatch.drivers.camera.sources.oak as oak
 
     frames = FakeQueue([FakeFrame(i, np.zeros((H, W, 3), np.uint8)) for i in range(100)])
     monkeypatch.setattr(

@@ -6,8 +6,8 @@ import importlib.util
 import numpy as np
 import pytest
 
-from drivers.camera.errors import ModelError
-from drivers.camera.quantize import INSTALL_HINT, quantize_detector
+from mmatch.drivers.camera.errors import ModelError
+from mmatch.drivers.camera.quantize import INSTALL_HINT, quantize_detector
 
 from . import onnx_builder as ob
 
@@ -61,7 +61,7 @@ def _conv_detector(tmp_path):
 
 
 def test_conv_model_runs_as_a_detector(tmp_path):
-    from drivers.camera.detector import DetectorConfig, OnnxDetector
+    from mmatch.drivers.camera.detector import DetectorConfig, OnnxDetector
 
     src = _conv_detector(tmp_path)
     det = OnnxDetector(
@@ -79,7 +79,7 @@ def test_conv_model_runs_as_a_detector(tmp_path):
 
 def test_static_qdq_int8_detector_matches_float(tmp_path):
     pytest.importorskip("onnx")
-    from drivers.camera.detector import DetectorConfig, OnnxDetector
+    from mmatch.drivers.camera.detector import DetectorConfig, OnnxDetector
 
     src = _conv_detector(tmp_path)
     rng = np.random.default_rng(1)

@@ -4,15 +4,15 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.camera.calibration import validate
-from drivers.camera.decode import Decoded
-from drivers.camera.errors import CameraUnavailable, EndOfStream, ModelError
-from drivers.camera.pipeline import DetectionStage
-from drivers.camera.resilient import ResilientCamera
-from drivers.camera.sources import open_camera
-from drivers.camera.sources.base import CameraSource
-from drivers.camera.sources.opencv import OpenCvCamera, parse_device
-from drivers.camera.sources.replay import ReplayCamera
+from mmatch.drivers.camera.calibration import validate
+from mmatch.drivers.camera.decode import Decoded
+from mmatch.drivers.camera.errors import CameraUnavailable, EndOfStream, ModelError
+from mmatch.drivers.camera.pipeline import DetectionStage
+from mmatch.drivers.camera.resilient import ResilientCamera
+from mmatch.drivers.camera.sources import open_camera
+from mmatch.drivers.camera.sources.base import CameraSource
+from mmatch.drivers.camera.sources.opencv import OpenCvCamera, parse_device
+from mmatch.drivers.camera.sources.replay import ReplayCamera
 from mmatch.errors import ConfigError
 from mmatch.types import CameraModel, Detections
 
@@ -157,7 +157,7 @@ def test_sim_camera_on_a_fake_clock():
 
 def test_open_camera_checks_at_start(tmp_path):
     calib = tmp_path / "c.toml"
-    from drivers.camera.calibration import dumps_calibration
+    from mmatch.drivers.camera.calibration import dumps_calibration
 
     calib.write_text(dumps_calibration(CALIB))
     with pytest.raises(ModelError, match="missing.onnx"):

@@ -5,8 +5,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drivers.camera.__main__ import main
-from drivers.camera.calibration import dumps_calibration, load_calibration, validate
+from mmatch.drivers.camera.__main__ import main
+from mmatch.drivers.camera.calibration import dumps_calibration, load_calibration, validate
 
 from . import onnx_builder as ob
 from .camera_synth import painted_scene

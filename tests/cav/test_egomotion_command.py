@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from edge.commands import egomotion as command
+from mmatch.edge.commands import egomotion as command
 from mmatch.scene_io import RADAR_FORMAT, save_radar_frame
 
 from .synth import make_frame

@@ -68,16 +68,16 @@ def no_socket_left_open():
 
 @pytest.fixture(scope="session")
 def radar_cfg():
-    from drivers.ti.cfg import load_cfg
+    from mmatch.drivers.ti.cfg import load_cfg
 
-    logging.getLogger("drivers.ti.cfg").setLevel(logging.ERROR)
+    logging.getLogger("mmatch.drivers.ti.cfg").setLevel(logging.ERROR)
     return load_cfg(CFG_PATH)
 
 
 @pytest.fixture(scope="session")
 def dsp_setup(radar_cfg):
     """(cfg, geometry, RadarDsp) for the AWR2243 3TX x 4RX cfg, CA-CFAR."""
-    from drivers.dca1000.dsp import make_dsp
+    from mmatch.drivers.dca1000.dsp import make_dsp
 
     geom, dsp = make_dsp(radar_cfg)
     return radar_cfg, geom, dsp

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.dca1000.assembler import FrameAssembler
+from mmatch.drivers.dca1000.assembler import FrameAssembler
 
 P = 1456
 

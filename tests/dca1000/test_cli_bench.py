@@ -9,18 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.dca1000.bench import AWR2243_BENCH_CFG
-from drivers.dca1000.layout import FrameGeometry
-from drivers.dca1000.synth import Target, synth_raw_frames
-from drivers.ti.cfg import parse_cfg
-from edge.cli import main
+from mmatch.drivers.dca1000.bench import AWR2243_BENCH_CFG
+from mmatch.drivers.dca1000.layout import FrameGeometry
+from mmatch.drivers.dca1000.synth import Target, synth_raw_frames
+from mmatch.drivers.ti.cfg import parse_cfg
+from mmatch.edge.cli import main
 
 CFG_PATH = Path(__file__).parent / "awr2243_3tx.cfg"
 
 
 @pytest.fixture(autouse=True)
 def _quiet_cfg_warnings():
-    logging.getLogger("drivers.ti.cfg").setLevel(logging.ERROR)
+    logging.getLogger("mmatch.drivers.ti.cfg").setLevel(logging.ERROR)
 
 
 def test_dsp_command_writes_points_per_frame(tmp_path, radar_cfg, capsys):
@@ -56,7 +56,7 @@ def test_bench_cfg_is_the_shipped_test_cfg(radar_cfg):
 
 
 def test_bench_quick_smoke():
-    from drivers.dca1000.bench import run
+    from mmatch.drivers.dca1000.bench import run
 
     out = run(quick=True)
     assert all(isinstance(v, (int, float)) for v in out.values())

@@ -7,9 +7,9 @@ import time
 
 import pytest
 
-from drivers.dca1000.control import Dca1000Control, Dca1000Error
-from drivers.dca1000.fake import FakeDca1000
-from drivers.dca1000.protocol import (
+from mmatch.drivers.dca1000.control import Dca1000Control, Dca1000Error
+from mmatch.drivers.dca1000.fake import FakeDca1000
+from mmatch.drivers.dca1000.protocol import (
     Cmd,
     FpgaConfig,
     FpgaVersion,

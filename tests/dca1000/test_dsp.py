@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.dca1000.dsp import DspConfig, RadarDsp, make_dsp
-from drivers.dca1000.layout import FrameGeometry, cube_to_raw, raw_to_cube
-from drivers.dca1000.synth import Target, synth_cube
-from drivers.ti.cfg import parse_cfg
+from mmatch.drivers.dca1000.dsp import DspConfig, RadarDsp, make_dsp
+from mmatch.drivers.dca1000.layout import FrameGeometry, cube_to_raw, raw_to_cube
+from mmatch.drivers.dca1000.synth import Target, synth_cube
+from mmatch.drivers.ti.cfg import parse_cfg
 
 
 def _match(points: np.ndarray, t: Target, chirp) -> tuple[float, float, float, float]:
@@ -195,7 +195,7 @@ sensorStart
 
 def test_two_lane_two_tx_capture(caplog):
     """xWR18xx style: 2-lane layout, TX0 + TX2 (8-element azimuth array, no elevation)."""
-    with caplog.at_level(logging.ERROR, logger="drivers.ti.cfg"):
+    with caplog.at_level(logging.ERROR, logger="mmatch.drivers.ti.cfg"):
         cfg = parse_cfg(TWO_LANE_CFG, "<2lane>")
     geom, dsp = make_dsp(cfg, "2lane")
     assert geom.tx_order == (0, 2) and geom.frame_bytes == 128 * 4 * 128 * 4
@@ -225,10 +225,10 @@ PROJECT_CFGS = sorted((Path(__file__).parents[2] / "cfg" / "radar").glob("*.cfg"
 @pytest.mark.parametrize("path", PROJECT_CFGS, ids=lambda p: p.name)
 def test_the_uart_path_cfgs_drive_the_dsp(path, caplog):
     """The vehicle cfgs of the UART path, recorded raw over 2 lanes, give the same targets."""
-    from drivers.dca1000.antenna import LAYOUTS
-    from drivers.ti.cfg import load_cfg
+    from mmatch.drivers.dca1000.antenna import LAYOUTS
+    from mmatch.drivers.ti.cfg import load_cfg
 
-    with caplog.at_level(logging.ERROR, logger="drivers.ti.cfg"):
+    with caplog.at_level(logging.ERROR, logger="mmatch.drivers.ti.cfg"):
         cfg = load_cfg(path)
     c = cfg.chirp
     antenna = LAYOUTS["xwr16xxboost"] if c.tx_order == (0, 1) else LAYOUTS["awr1843boost"]
@@ -243,7 +243,7 @@ def test_the_uart_path_cfgs_drive_the_dsp(path, caplog):
 
 
 def test_mirrored_board_flips_x_unless_declared(radar_cfg):
-    from drivers.dca1000.antenna import AWR2243BOOST
+    from mmatch.drivers.dca1000.antenna import AWR2243BOOST
 
     mirrored = AWR2243BOOST.mirror_x()
     geom, plain = make_dsp(radar_cfg)
@@ -257,8 +257,8 @@ def test_mirrored_board_flips_x_unless_declared(radar_cfg):
 def test_cli_antenna_choices_are_the_layouts():
     import argparse
 
-    from drivers.dca1000.antenna import LAYOUTS
-    from edge.commands import dsp as cmd
+    from mmatch.drivers.dca1000.antenna import LAYOUTS
+    from mmatch.edge.commands import dsp as cmd
 
     p = argparse.ArgumentParser()
     cmd.add_arguments(p)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.dca1000.layout import (
+from mmatch.drivers.dca1000.layout import (
     FrameGeometry,
     RawLayout,
     cube_to_raw,

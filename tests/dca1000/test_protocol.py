@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.dca1000.protocol import (
+from mmatch.drivers.dca1000.protocol import (
     Cmd,
     CommandPacket,
     DataPacketHeader,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.dca1000.layout import FrameGeometry, RawLayout, cube_to_raw
-from drivers.dca1000.rawfile import RawCapture
+from mmatch.drivers.dca1000.layout import FrameGeometry, RawLayout, cube_to_raw
+from mmatch.drivers.dca1000.rawfile import RawCapture
 from mmatch.errors import ParseError
 
 G = FrameGeometry(RawLayout.FOUR_LANE, 4, (0, 1), (0, 1, 2, 3), 32)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.dca1000.assembler import FrameAssembler
-from drivers.dca1000.control import Dca1000Control
-from drivers.dca1000.dsp import make_dsp
-from drivers.dca1000.fake import FakeDca1000
-from drivers.dca1000.layout import FrameGeometry, RawLayout, raw_to_cube
-from drivers.dca1000.receiver import DataReceiver
-from drivers.dca1000.synth import Target, synth_raw_frames
+from mmatch.drivers.dca1000.assembler import FrameAssembler
+from mmatch.drivers.dca1000.control import Dca1000Control
+from mmatch.drivers.dca1000.dsp import make_dsp
+from mmatch.drivers.dca1000.fake import FakeDca1000
+from mmatch.drivers.dca1000.layout import FrameGeometry, RawLayout, raw_to_cube
+from mmatch.drivers.dca1000.receiver import DataReceiver
+from mmatch.drivers.dca1000.synth import Target, synth_raw_frames
 
 GEOM = FrameGeometry(RawLayout.FOUR_LANE, 16, (0, 1, 2), (0, 1, 2, 3), 64)  # 49152 B = 33.8 packets
 F = GEOM.frame_bytes
@@ -123,7 +123,7 @@ def test_corrupt_datagrams_flag_only_their_frame(batch):
     """A runt datagram, an oversize one and a packet with an impossible byte count."""
     import socket
 
-    from drivers.dca1000.protocol import data_packet
+    from mmatch.drivers.dca1000.protocol import data_packet
 
     P = 1456
     n_frames = 4
@@ -167,7 +167,7 @@ def test_fake_replays_a_recorded_capture(tmp_path):
 def test_small_kernel_buffer_is_reported(caplog):
     import logging
 
-    with caplog.at_level(logging.WARNING, logger="drivers.dca1000.receiver"):
+    with caplog.at_level(logging.WARNING, logger="mmatch.drivers.dca1000.receiver"):
         with DataReceiver(FrameAssembler(F), host="127.0.0.1", port=0, rcvbuf=1 << 30) as rx:
             assert 0 < rx.rcvbuf < 1 << 30
     assert "rmem_max" in caplog.text

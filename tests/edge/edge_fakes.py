@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edge.pipeline import Pipeline
+from mmatch.edge.pipeline import Pipeline
 from mmatch.errors import DecodeError
 from mmatch.shared import SharedFrame
 

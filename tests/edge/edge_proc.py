@@ -64,7 +64,7 @@ def start(args: list[str], log_file: Path, env: dict | None = None, nice: bool =
     e.update(env or {})
     out = open(log_file, "ab")
     try:
-        return subprocess.Popen([sys.executable, "-m", "edge.cli", "-v", *args], cwd=REPO, env=e,
+        return subprocess.Popen([sys.executable, "-m", "mmatch.edge.cli", "-v", *args], cwd=REPO, env=e,
                                 stdout=out, stderr=subprocess.STDOUT,
                                 preexec_fn=_service_priority if nice else None)
     finally:
@@ -72,7 +72,7 @@ def start(args: list[str], log_file: Path, env: dict | None = None, nice: bool =
 
 
 def mmatch(args: list[str], timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "edge.cli", *args], cwd=REPO, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "mmatch.edge.cli", *args], cwd=REPO, capture_output=True,
                           text=True, timeout=timeout)
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from edge import config
+from mmatch.edge import config
 from mmatch.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -82,7 +82,7 @@ def test_shipped_configs_load(name):
 
 def test_effective_config_is_logged(caplog):
     cfg = config.from_dict({"vehicle": {"id": "ego7"}})
-    with caplog.at_level("INFO", logger="edge.config"):
+    with caplog.at_level("INFO", logger="mmatch.edge.config"):
         config.log_effective(cfg)
     assert any("id='ego7'" in r.getMessage() for r in caplog.records)
 

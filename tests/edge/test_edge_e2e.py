@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from edge_proc import mmatch, start, stop, wait_for, write_vehicle_cfg
 
-from edge import keys
-from edge.config import ZenohSection
-from edge.transport import Transport
+from mmatch.edge import keys
+from mmatch.edge.config import ZenohSection
+from mmatch.edge.transport import Transport
 from netutil import free_port
 
 pytestmark = pytest.mark.slow
@@ -173,7 +173,7 @@ def test_replaying_the_clean_ego_log_reproduces_the_live_results(live):
 
 
 def test_ego_fuses_several_cavs_at_once(tmp_path):
-    from edge import logreader
+    from mmatch.edge import logreader
 
     ego_ep = f"tcp/127.0.0.1:{free_port()}"
     ego_cfg = write_vehicle_cfg(tmp_path / "ego.toml", vid="ego1", role="ego", listen=[ego_ep], connect=[],

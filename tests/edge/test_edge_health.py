@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import socket
 
-from edge import health
+from mmatch.edge import health
 
 
 def test_notify_messages_arrive_on_a_real_socket(tmp_path):

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from edge_fakes import FAKE, encode, process_view
 
-from edge import config, keys
-from edge.logschema import SensorFrame
-from edge.node import Node
-from edge.sources.base import default_camera
+from mmatch.edge import config, keys
+from mmatch.edge.logschema import SensorFrame
+from mmatch.edge.node import Node
+from mmatch.edge.sources.base import default_camera
 from mmatch.errors import DecodeError
 
 
@@ -112,8 +112,8 @@ def test_cav_role_publishes_shared_frames():
 def test_loop_survives_a_pipeline_failure_on_one_frame():
     from dataclasses import replace
 
-    from edge.loop import VehicleLoop
-    from edge.sources.base import NoCamera
+    from mmatch.edge.loop import VehicleLoop
+    from mmatch.edge.sources.base import NoCamera
     from mmatch.types import RadarFrame
 
     calls = []

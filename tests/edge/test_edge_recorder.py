@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge import logreader, logschema
-from edge.config import LogSection
-from edge.recorder import MB, Recorder
+from mmatch.edge import logreader, logschema
+from mmatch.edge.config import LogSection
+from mmatch.edge.recorder import MB, Recorder
 from mmatch.errors import ParseError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -126,9 +126,9 @@ def test_not_mcap_is_refused(tmp_path):
 
 WRITER = textwrap.dedent("""
     import sys, time
-    from edge.config import LogSection
-    from edge.recorder import Recorder
-    from edge import logschema
+    from mmatch.edge.config import LogSection
+    from mmatch.edge.recorder import Recorder
+    from mmatch.edge import logschema
     rec = Recorder(LogSection(dir=sys.argv[1], chunk_kb=2.0, flush_s=0.05, compression="zstd",
                               raw_floor_mb=0.0, floor_mb=0.0)).open()
     i = 0
@@ -165,7 +165,7 @@ def test_sigkilled_writer_leaves_a_readable_file(tmp_path):
 
 
 def test_disk_error_costs_the_file_not_the_recorder(tmp_path, monkeypatch):
-    from edge import recorder as recmod
+    from mmatch.edge import recorder as recmod
 
     with Recorder(_cfg(tmp_path, chunk_kb=1.0)) as rec:
         for i in range(20):

@@ -8,8 +8,8 @@ import time
 import numpy as np
 from edge_proc import mmatch, write_vehicle_cfg
 
-from edge import logreader
-from edge.replay import Pacer, compare_fused, log_events
+from mmatch.edge import logreader
+from mmatch.edge.replay import Pacer, compare_fused, log_events
 
 
 def test_pacer_keeps_recorded_time_and_speed():

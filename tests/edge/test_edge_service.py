@@ -9,7 +9,7 @@ import socket
 import pytest
 from edge_proc import REPO, mmatch, start, stop, wait_for, write_vehicle_cfg
 
-from edge import logreader
+from mmatch.edge import logreader
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])

@@ -9,11 +9,11 @@ import time
 import numpy as np
 import pytest
 
-from edge import config
-from edge.loop import SensorReader
-from edge.sources import open_camera, open_radar
-from edge.sources.base import NoCamera
-from edge.sources.sim import SimCamera, SimRadar
+from mmatch.edge import config
+from mmatch.edge.loop import SensorReader
+from mmatch.edge.sources import open_camera, open_radar
+from mmatch.edge.sources.base import NoCamera
+from mmatch.edge.sources.sim import SimCamera, SimRadar
 from mmatch.errors import ConfigError
 from netutil import free_port
 
@@ -121,10 +121,10 @@ sensorStart
 
 
 def test_dca1000_source_against_the_fake_fpga(tmp_path):
-    from drivers.dca1000.fake import FakeDca1000
-    from drivers.dca1000.layout import cube_to_raw
-    from drivers.dca1000.synth import Target, synth_cube
-    from drivers.ti.cfg import parse_cfg
+    from mmatch.drivers.dca1000.fake import FakeDca1000
+    from mmatch.drivers.dca1000.layout import cube_to_raw
+    from mmatch.drivers.dca1000.synth import Target, synth_cube
+    from mmatch.drivers.ti.cfg import parse_cfg
 
     (tmp_path / "r.cfg").write_text(DCA_CFG)
     data_port = free_port(socket.SOCK_DGRAM)
@@ -157,7 +157,7 @@ def test_dca1000_source_against_the_fake_fpga(tmp_path):
 
 
 def test_camera_history_picks_closest_and_waits_for_a_late_image():
-    from edge.loop import CameraHistory
+    from mmatch.edge.loop import CameraHistory
     from mmatch.types import Detections
 
     def det(t):
@@ -175,7 +175,7 @@ def test_camera_history_picks_closest_and_waits_for_a_late_image():
 
 
 def test_edge_bench_quick_numbers():
-    from edge.bench import run
+    from mmatch.edge.bench import run
 
     out = run(quick=True)
     assert out["recorder_frames_per_s"] > 20 and out["reader_messages_per_s"] > 40

@@ -7,9 +7,9 @@ import time
 
 import pytest
 
-from edge import keys
-from edge.config import ZenohSection
-from edge.transport import KeepNewest, Transport, zenoh_config_json
+from mmatch.edge import keys
+from mmatch.edge.config import ZenohSection
+from mmatch.edge.transport import KeepNewest, Transport, zenoh_config_json
 from mmatch.errors import ConfigError, DecodeError
 from netutil import free_port
 

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from edge_proc import mmatch, start, stop, wait_for
 
-from drivers.ti.writer import encode_frame
-from edge import config, logschema
-from edge.loop import SensorReader
-from edge.logreader import read_messages
-from edge.replay import log_events
-from edge.sources.uart import UartRadar
+from mmatch.drivers.ti.writer import encode_frame
+from mmatch.edge import config, logschema
+from mmatch.edge.loop import SensorReader
+from mmatch.edge.logreader import read_messages
+from mmatch.edge.replay import log_events
+from mmatch.edge.sources.uart import UartRadar
 
 BAUD = 921600
 
@@ -193,7 +193,7 @@ def test_garbage_is_counted_not_raised(tmp_path):
 
 @pytest.mark.slow
 def test_run_configures_a_simulated_evm_and_streams_its_frames(tmp_path):
-    from drivers.ti.simulator import SimulatedRadar, default_points
+    from mmatch.drivers.ti.simulator import SimulatedRadar, default_points
 
     profile = Path(__file__).resolve().parents[2] / "cfg" / "radar" / "xwr18xx_vehicle_100m.cfg"
     with SimulatedRadar(fmt="sdk3") as evm:

@@ -7,12 +7,12 @@ import subprocess
 import sys
 import time
 
-from edge.cli import main
+from mmatch.edge.cli import main
 
 
 def test_help_is_fast_and_lists_commands():
     t0 = time.monotonic()
-    out = subprocess.run([sys.executable, "-m", "edge.cli", "--help"], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-m", "mmatch.edge.cli", "--help"], capture_output=True, text=True, check=True)
     assert time.monotonic() - t0 < 20
     for cmd in ("sim", "eval", "demo", "egomotion", "bench", "run", "replay", "parse-uart", "dsp"):
         assert cmd in out.stdout

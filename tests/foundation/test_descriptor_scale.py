@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from edge.cli import main
+from mmatch.edge.cli import main
 from mmatch.ego.base import descriptor_distance
 from mmatch.ego.descriptor_scale import (
     CONTENT_BAND,

@@ -7,7 +7,7 @@ import shutil
 
 import numpy as np
 
-from edge.cli import main
+from mmatch.edge.cli import main
 from mmatch.evaluate import EvalConfig, evaluate_dir, evaluate_scene
 from mmatch.scene_io import load_scene, save_scene, scene_arrays
 

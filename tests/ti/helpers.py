@@ -11,14 +11,14 @@ import struct
 
 import numpy as np
 
-from drivers.ti.header import MAGIC
-from drivers.ti.tlv import (
+from mmatch.drivers.ti.header import MAGIC
+from mmatch.drivers.ti.tlv import (
     CMPLX16, COMPRESSED_POINT, EXT_POINT, SIDE_INFO, TARGET_2D, TARGET_3D, TARGET_HEIGHT,
     AzimuthElevationStaticHeatMap, AzimuthStaticHeatMap, CompressedPoints, ExtDetectedPoints,
     NoiseProfile, Pc3dTargetIndex, Pc3dTargetList, PresenceIndication, RangeDopplerHeatMap,
     RangeProfile, RawTlv, SideInfo, Stats, TargetHeight, TargetIndex, TargetList,
     TemperatureStats)
-from drivers.ti.writer import encode_frame
+from mmatch.drivers.ti.writer import encode_frame
 
 
 def make_points(n: int, seed: int = 0, max_range: float = 60.0) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""drivers.ti.cfg: parse, validate, derive (ti_formats.md 1c)."""
+"""mmatch.drivers.ti.cfg: parse, validate, derive (ti_formats.md 1c)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from drivers.ti.cfg import ChirpParams, RadarCfg, load_cfg, parse_cfg, vehicle_warnings
+from mmatch.drivers.ti.cfg import ChirpParams, RadarCfg, load_cfg, parse_cfg, vehicle_warnings
 from mmatch.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -57,7 +57,7 @@ def test_commands_skip_comments_and_keep_line_numbers():
 
 
 def test_slow_profile_warns(caplog):
-    with caplog.at_level(logging.WARNING, logger="drivers.ti.cfg"):
+    with caplog.at_level(logging.WARNING, logger="mmatch.drivers.ti.cfg"):
         cfg = parse_cfg(DMH_1443, "dmh.cfg")
     assert any("max velocity 1.00 m/s" in w for w in cfg.warnings)
     assert "max velocity" in caplog.text and "dmh.cfg" in caplog.text

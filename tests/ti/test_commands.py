@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.ti import bench
-from drivers.ti.writer import encode_frame
-from edge.cli import main
+from mmatch.drivers.ti import bench
+from mmatch.drivers.ti.writer import encode_frame
+from mmatch.edge.cli import main
 
 from .helpers import make_points, named_fixtures
 from .test_io import FakeRadar
@@ -63,7 +63,7 @@ def test_parse_uart_empty_capture(tmp_path):
 
 
 def test_parse_uart_qformat_with_cfg(tmp_path):
-    from drivers.ti.cfg import load_cfg
+    from mmatch.drivers.ti.cfg import load_cfg
 
     chirp = load_cfg(VEHICLE_CFG).chirp
     pts = make_points(4, seed=1)
@@ -138,9 +138,9 @@ def test_bench_quick():
 
 def test_simulated_radar_end_to_end(capsys):
     """radar-config to the simulated EVM's CLI port, then the real UART path on its data port."""
-    from drivers.ti.reader import TlvReader
-    from drivers.ti.simulator import SimulatedRadar
-    from drivers.ti.sources import SerialSource
+    from mmatch.drivers.ti.reader import TlvReader
+    from mmatch.drivers.ti.simulator import SimulatedRadar
+    from mmatch.drivers.ti.sources import SerialSource
 
     def points(fn):
         return make_points(3 + fn % 5, seed=fn)
@@ -165,14 +165,14 @@ def test_simulated_radar_end_to_end(capsys):
 
 
 def test_simulated_radar_refuses_like_firmware():
-    from drivers.ti.config_sender import RadarConfigError, send_cfg
-    from drivers.ti.simulator import SimulatedRadar
+    from mmatch.drivers.ti.config_sender import RadarConfigError, send_cfg
+    from mmatch.drivers.ti.simulator import SimulatedRadar
 
     with SimulatedRadar() as sim:
         import serial
 
         with serial.Serial(sim.cli_port, 115200, timeout=0.05) as ser:
-            from drivers.ti.config_sender import _send_line
+            from mmatch.drivers.ti.config_sender import _send_line
 
             assert "Ignored" in _send_line(ser, "sensorStop", 2.0, "mmwDemo:/>", 0.2, "t")
             with pytest.raises(RadarConfigError, match="not recognized"):
@@ -191,8 +191,8 @@ def test_radar_config_data_port_silent_or_wrong_baud():
     import threading
     import time
 
-    from drivers.ti.simulator import SimulatedRadar
-    from edge.commands.radar_config import check_data_port
+    from mmatch.drivers.ti.simulator import SimulatedRadar
+    from mmatch.edge.commands.radar_config import check_data_port
     from mmatch.errors import DeviceTimeout
 
     with SimulatedRadar() as sim:  # never configured: the data port stays silent

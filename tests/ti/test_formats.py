@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.ti.cfg import load_cfg
-from drivers.ti.decoder import NEED_MORE, OK, REJECT, decode_frame
-from drivers.ti.header import MAGIC, FrameHeader, HeaderFormat, pc3d_checksum_ok
-from drivers.ti.tlv import (
+from mmatch.drivers.ti.cfg import load_cfg
+from mmatch.drivers.ti.decoder import NEED_MORE, OK, REJECT, decode_frame
+from mmatch.drivers.ti.header import MAGIC, FrameHeader, HeaderFormat, pc3d_checksum_ok
+from mmatch.drivers.ti.tlv import (
     OOB_TLVS, PC3D_TLVS, DetectedPoints, DetectedPointsQ, Pc3dCompressedPoints, RawTlv, SideInfo,
     Stats, TlvType)
-from drivers.ti.writer import (
+from mmatch.drivers.ti.writer import (
     FORMATS, EncodeError, encode_frame, encode_packet, encode_stream, expected_points, point_tlvs)
 from mmatch.errors import DecodeError
 
@@ -254,8 +254,8 @@ def test_encode_stream_numbers_frames():
 
 def test_shapes_seen_in_real_recordings():
     """Sizes the reference reports from real captures come out of the writer unchanged."""
-    from drivers.ti.tlv import AzimuthStaticHeatMap, RangeProfile
-    from drivers.ti.writer import TI_PC3D_UNITS
+    from mmatch.drivers.ti.tlv import AzimuthStaticHeatMap, RangeProfile
+    from mmatch.drivers.ti.writer import TI_PC3D_UNITS
 
     # SDK 3.3: a 768-byte packet with 20 bytes of padding (33 points + side info + stats)
     sdk33 = encode_frame(make_points(33), 1, "sdk3", extra_tlvs=[Stats()])

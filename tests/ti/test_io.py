@@ -12,11 +12,11 @@ from pathlib import Path
 import pytest
 import serial
 
-from drivers.ti.cfg import load_cfg, parse_cfg
-from drivers.ti.config_sender import RadarConfigError, send_cfg
-from drivers.ti.reader import TlvReader
-from drivers.ti.sources import BytesSource, FileSource, SerialSource, open_source
-from drivers.ti.writer import encode_frame
+from mmatch.drivers.ti.cfg import load_cfg, parse_cfg
+from mmatch.drivers.ti.config_sender import RadarConfigError, send_cfg
+from mmatch.drivers.ti.reader import TlvReader
+from mmatch.drivers.ti.sources import BytesSource, FileSource, SerialSource, open_source
+from mmatch.drivers.ti.writer import encode_frame
 from mmatch.errors import ConfigError, DeviceError, DeviceTimeout
 
 from .helpers import make_points

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from drivers.ti.reader import read_all
-from drivers.ti.writer import encode_frame
+from mmatch.drivers.ti.reader import read_all
+from mmatch.drivers.ti.writer import encode_frame
 
 from .helpers import all_tlv_messages, make_points
 

@@ -7,8 +7,8 @@ import logging
 import numpy as np
 import pytest
 
-from drivers.ti.reader import TlvReader, read_all
-from drivers.ti.writer import encode_frame, encode_stream
+from mmatch.drivers.ti.reader import TlvReader, read_all
+from mmatch.drivers.ti.writer import encode_frame, encode_stream
 from mmatch.errors import DecodeError
 
 from .helpers import make_points, named_fixtures
@@ -82,11 +82,11 @@ def test_frame_gaps_and_tlv_counters():
 
 def test_policy_log_skip_raise(caplog):
     data, _ = FIXTURES["second_magic_inside.bin"]
-    with caplog.at_level(logging.WARNING, logger="drivers.ti.reader"):
+    with caplog.at_level(logging.WARNING, logger="mmatch.drivers.ti.reader"):
         read_all(data, on_error="log")
     assert "magic_inside_packet" in caplog.text
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="drivers.ti.reader"):
+    with caplog.at_level(logging.WARNING, logger="mmatch.drivers.ti.reader"):
         read_all(data, on_error="skip")
     assert caplog.text == ""
     r = TlvReader(on_error="raise")
@@ -120,7 +120,7 @@ def test_bad_policy_name():
 
 
 def test_decoder_bug_is_counted_not_raised(monkeypatch, caplog):
-    import drivers.ti.reader as reader_mod
+    import mmatch.drivers.ti.reader as reader_mod
 
     calls = {"n": 0}
     real = reader_mod.decode_frame
@@ -133,14 +133,14 @@ def test_decoder_bug_is_counted_not_raised(monkeypatch, caplog):
 
     monkeypatch.setattr(reader_mod, "decode_frame", flaky)
     data = b"".join(encode_frame(make_points(3), fn) for fn in (1, 2, 3))
-    with caplog.at_level(logging.ERROR, logger="drivers.ti.reader"):
+    with caplog.at_level(logging.ERROR, logger="mmatch.drivers.ti.reader"):
         packets, st = read_all(data)
     assert [p.header.frame_number for p in packets] == [1, 3]
     assert dict(st.rejected) == {"internal_error": 1} and "boom" in caplog.text
 
 
 def test_malformed_side_tlv_costs_only_itself():
-    from drivers.ti.tlv import RawTlv, Stats
+    from mmatch.drivers.ti.tlv import RawTlv, Stats
 
     pts = make_points(4, seed=2)
     odd_stats = RawTlv(6, bytes(20))       # STATS should be 24 B
@@ -168,7 +168,7 @@ def test_wrong_port_or_baud_hint_logged_once(caplog):
     rng = np.random.default_rng(0)
     junk = rng.integers(0, 256, 200_000, dtype=np.uint8).tobytes()
     r = TlvReader(on_error="skip")
-    with caplog.at_level(logging.WARNING, logger="drivers.ti.reader"):
+    with caplog.at_level(logging.WARNING, logger="mmatch.drivers.ti.reader"):
         for k in range(0, len(junk), 10_000):
             r.feed(junk[k:k + 10_000])
     hints = [rec for rec in caplog.records if "baud" in rec.getMessage()]
@@ -176,7 +176,7 @@ def test_wrong_port_or_baud_hint_logged_once(caplog):
 
 
 def test_tiny_unpadded_sdk1_frames_back_to_back():
-    from drivers.ti.header import FrameHeader, HeaderFormat
+    from mmatch.drivers.ti.header import FrameHeader, HeaderFormat
 
     def bare(fn, fmt, size):  # SDK 1.x: header only, no TLVs, no padding
         return FrameHeader(fmt, 0x01020000, size, 0xA1642, fn, 0).to_bytes()
@@ -193,7 +193,7 @@ def test_tiny_unpadded_sdk1_frames_back_to_back():
 
 
 def test_big_frame_in_small_reads_and_cut_short():
-    from drivers.ti.tlv import RangeDopplerHeatMap
+    from mmatch.drivers.ti.tlv import RangeDopplerHeatMap
 
     heat = RangeDopplerHeatMap(np.arange(300_000, dtype=np.uint32).astype("<u2"))
     big = encode_frame(make_points(10), 1, "sdk3", extra_tlvs=[heat])

@@ -12,8 +12,8 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from drivers.camera.errors import ModelError
-from drivers.camera.sources.base import CameraSource
+from mmatch.drivers.camera.errors import ModelError
+from mmatch.drivers.camera.sources.base import CameraSource
 from mmatch.errors import ConfigError
 
 BACKENDS = ("opencv", "oak", "replay", "sim")
@@ -58,18 +58,18 @@ def open_camera(
     Fails at once with ModelError / CalibrationError / ConfigError naming the file or key.
     """
     if source == "sim":
-        from drivers.camera.sources.sim import SimCamera
+        from mmatch.drivers.camera.sources.sim import SimCamera
 
         return SimCamera(seed=seed, mode=mode, role=role, rate_hz=rate_hz)
     if source not in BACKENDS:
         raise ConfigError(
             f"camera.source: unknown backend {source!r} (known: {', '.join(BACKENDS)})"
         )
-    from drivers.camera.calibration import load_calibration
+    from mmatch.drivers.camera.calibration import load_calibration
 
     calib = load_calibration(calibration) if calibration else None
     if source == "oak":
-        from drivers.camera.sources.oak import OakCamera, OakConfig
+        from mmatch.drivers.camera.sources.oak import OakCamera, OakConfig
 
         if calib is None:
             raise ConfigError("camera.calibration: required for the oak backend")
@@ -82,8 +82,8 @@ def open_camera(
         return OakCamera(cfg, calib, radar_height=radar_height)
     stage = None
     if model:
-        from drivers.camera.detector import DetectorConfig, OnnxDetector
-        from drivers.camera.pipeline import DetectionStage
+        from mmatch.drivers.camera.detector import DetectorConfig, OnnxDetector
+        from mmatch.drivers.camera.pipeline import DetectionStage
 
         if calib is None:
             raise ConfigError(
@@ -95,14 +95,14 @@ def open_camera(
         det = OnnxDetector(DetectorConfig.from_dict(settings))
         stage = DetectionStage(det.detect, calib, radar_height=radar_height)
     if source == "opencv":
-        from drivers.camera.sources.opencv import OpenCvCamera
+        from mmatch.drivers.camera.sources.opencv import OpenCvCamera
 
         if stage is None:
             raise ConfigError(
                 "camera.model: required for the opencv backend (an ONNX vehicle detector)"
             )
         return OpenCvCamera(device, stage)
-    from drivers.camera.sources.replay import ReplayCamera
+    from mmatch.drivers.camera.sources.replay import ReplayCamera
 
     if not path:
         raise ConfigError("camera.path: required for the replay backend")

@@ -17,7 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from drivers.camera.pipeline import CameraDetections, DetectionStage
+from mmatch.drivers.camera.pipeline import CameraDetections, DetectionStage
 from mmatch.types import CameraModel, Detections
 
 

@@ -28,12 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.camera.calibration import Calibration
-from drivers.camera.decode import Decoded
-from drivers.camera.depth import DepthConfig, GroundPlane
-from drivers.camera.errors import CameraUnavailable, ModelError
-from drivers.camera.pipeline import CameraDetections, DetectionStage, check_frame
-from drivers.camera.sources.base import CameraSource
+from mmatch.drivers.camera.calibration import Calibration
+from mmatch.drivers.camera.decode import Decoded
+from mmatch.drivers.camera.depth import DepthConfig, GroundPlane
+from mmatch.drivers.camera.errors import CameraUnavailable, ModelError
+from mmatch.drivers.camera.pipeline import CameraDetections, DetectionStage, check_frame
+from mmatch.drivers.camera.sources.base import CameraSource
 from mmatch.errors import ConfigError
 from mmatch.types import CameraModel
 
@@ -359,7 +359,7 @@ def calibration_from_oak(
     `device.readCalibration()`), for frames of `image_size` produced with STRETCH (the scaling
     this backend uses: fx, cx scale with width, fy, cy with height). The extrinsic to the radar
     is not on the device: give it (e.g. from `estimate_T_cam_radar`)."""
-    from drivers.camera.calibration import validate
+    from mmatch.drivers.camera.calibration import validate
 
     dai = dai or import_depthai()
     sock = getattr(dai.CameraBoardSocket, socket)

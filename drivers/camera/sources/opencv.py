@@ -16,9 +16,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from drivers.camera.errors import CameraUnavailable, EndOfStream
-from drivers.camera.pipeline import DetectionStage
-from drivers.camera.sources.base import ImageCameraBase
+from mmatch.drivers.camera.errors import CameraUnavailable, EndOfStream
+from mmatch.drivers.camera.pipeline import DetectionStage
+from mmatch.drivers.camera.sources.base import ImageCameraBase
 
 log = logging.getLogger(__name__)
 

@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.camera.calibration import Calibration
-from drivers.camera.errors import CameraUnavailable, EndOfStream
-from drivers.camera.pipeline import DetectionStage
-from drivers.camera.sources.base import CameraSource
+from mmatch.drivers.camera.calibration import Calibration
+from mmatch.drivers.camera.errors import CameraUnavailable, EndOfStream
+from mmatch.drivers.camera.pipeline import DetectionStage
+from mmatch.drivers.camera.sources.base import CameraSource
 from mmatch.types import CameraModel, Detections
 
 log = logging.getLogger(__name__)

@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from drivers.camera.sources.base import CameraSource
+from mmatch.drivers.camera.sources.base import CameraSource
 from mmatch.types import CameraModel, Detections
 
 

@@ -1,0 +1,1 @@
+"""Matchers: which vehicles of the two views are the same (looked up by name in `ego.registry`)."""
