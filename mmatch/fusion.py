@@ -35,6 +35,12 @@ class FusionResult:
     T_ego_cav: float64 4x4 or None; pairs: int32 (P, 2) (own vehicle, other vehicle);
     objects: float32 (O, 4) x, y (Ego radar frame, m), source (0 own, 1 other, 2 both),
     vehicle index (own index for 0 and 2, other index for 1); timings: ms per stage.
+
+    How sure it is (DESIGN.md eval output): confidence is the probability (0-1) that the
+    estimate lies within 2 m / 5 deg of the truth (NaN when there is no estimate);
+    covariance: float64 (3, 3) of (x m, y m, yaw rad) in the Ego radar frame, or None;
+    ambiguity: the best distinct alternative's score relative to the chosen one (0: none,
+    1: as good), NaN when unknown.
     """
 
     status: str
@@ -43,6 +49,9 @@ class FusionResult:
     pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int32))
     objects: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.float32))
     timings: dict = field(default_factory=dict)
+    confidence: float = float("nan")
+    covariance: np.ndarray | None = None
+    ambiguity: float = float("nan")
 
 
 class Fuser:
