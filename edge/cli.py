@@ -8,6 +8,7 @@ import logging
 import os
 import sys
 
+from mmatch.edge.commands.args import DefaultsFormatter
 from mmatch.errors import MMatchError
 
 COMMANDS: dict[str, str] = {
@@ -23,6 +24,10 @@ COMMANDS: dict[str, str] = {
     "run": "mmatch.edge.commands.run",
     "replay": "mmatch.edge.commands.replay",
     "record": "mmatch.edge.commands.record",
+    "config": "mmatch.edge.commands.config",
+    "router": "mmatch.edge.commands.router",
+    "export": "mmatch.edge.commands.export",
+    "keys": "mmatch.edge.commands.keys",
 }
 
 
@@ -33,9 +38,28 @@ def _quiet_network_libraries() -> None:
     os.environ.setdefault("DEPTHAI_DISABLE_STARTUP_NOTIFICATIONS", "1")
 
 
+def version() -> str:
+    """The installed package's version (the source tree's when not installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("mmatch")
+    except PackageNotFoundError:
+        from mmatch import __version__
+
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mmatch", description=__doc__)
+    parser = argparse.ArgumentParser(prog="mmatch", description=__doc__, formatter_class=DefaultsFormatter)
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv: debug)")
+    parser.add_argument("--version", action="version", version=f"mmatch {version()}")
+    # -v also works after the sub-command (`mmatch run -c FILE -v`); SUPPRESS keeps the
+    # top-level count when it is not given there
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                        help="more logging (-vv: debug)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, module_name in COMMANDS.items():
         try:
@@ -44,15 +68,19 @@ def build_parser() -> argparse.ArgumentParser:
             if exc.name != module_name:
                 raise
             continue
-        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP, parents=[common],
+                           formatter_class=DefaultsFormatter)
         module.add_arguments(p)
-        p.set_defaults(_run=module.run)
+        p.set_defaults(_run=module.run, _parser=p)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     _quiet_network_libraries()
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # the sub-command's own usage, not the top-level one
+        args._parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
@@ -60,6 +88,9 @@ def main(argv: list[str] | None = None) -> int:
     except MMatchError as exc:
         print(f"mmatch {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # an output path that is a file, a full disk, no permission
+        print(f"mmatch {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 

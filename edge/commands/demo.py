@@ -6,14 +6,16 @@ import argparse
 import json
 from pathlib import Path
 
+from mmatch.edge.commands.args import positive_int
+
 HELP = "simulate a small mixed data set, evaluate it and draw a bird's-eye picture (make demo)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="mmatch-demo", help="output folder")
-    p.add_argument("--n", type=int, default=40, help="scene pairs to simulate")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--n", type=positive_int, default=40, help="scene pairs to simulate")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the first scene")
+    p.add_argument("--jobs", type=positive_int, default=2, help="worker processes")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -29,8 +31,11 @@ def run(args: argparse.Namespace) -> int:
     from mmatch.scene_io import load_scene
     from mmatch.sim.generate import generate
     from mmatch.sim.realism import realism_figures
+    from mmatch.errors import ConfigError
 
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: exists and is not a folder")
     scenes_dir = out / "scenes"
     scenes = generate(scenes_dir, args.n, args.seed, "mixed", args.jobs, Progress("sim"))
     fig = realism_figures(scenes)

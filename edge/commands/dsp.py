@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--lanes",
         choices=("4", "2"),
         default="4",
-        help="LVDS layout: 4 = interleaved AR1243/AWR2243 (default), 2 = xWR16xx/18xx/68xx",
+        help="LVDS layout: 4 = interleaved AR1243/AWR2243, 2 = xWR16xx/18xx/68xx",
     )
     p.add_argument(
         "--antenna",

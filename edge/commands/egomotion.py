@@ -28,21 +28,26 @@ def run(args: argparse.Namespace) -> int:
     from mmatch.cav.config import CavConfig
     from mmatch.cav.radar_eval import evaluate_radar_files
 
+    from mmatch.errors import ParseError
+
     folder = Path(args.dir)
     if not folder.is_dir():
-        print(f"mmatch egomotion: error: {folder}: not a folder", file=sys.stderr)
-        return 2
+        raise ParseError(f"{folder}: not a folder")
     cfg = CavConfig().egomotion
     if args.threshold is not None:
         cfg = replace(cfg, threshold_mps=args.threshold)
         CavConfig(egomotion=cfg)                       # validates (ConfigError names the key)
     paths = sorted(folder.glob("*.npz"))
+    if not paths:
+        raise ParseError(f"{folder}: no *.npz radar frame files")
     result = evaluate_radar_files(paths, cfg, progress=Progress("egomotion"))
     for exc in result.rejected:
         print(f"rejected: {exc}", file=sys.stderr)
     for name, reason in result.no_estimate:
         print(f"no estimate: {name}: {reason}", file=sys.stderr)
     r = result.report
+    if r["frames"] == 0:
+        raise ParseError(f"{folder}: every radar frame file ({r['rejected']}) was rejected")
     err = r["velocity_error_mps"]
     print(f"frames {r['frames']}  rejected {r['rejected']}  no estimate {len(result.no_estimate)}")
     print(f"velocity error m/s: median {_fmt(err['median'])}  p90 {_fmt(err['p90'])}")

@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+from mmatch.edge.commands.args import positive_int
+
 HELP = "evaluate matching and alignment on a folder of mmatch-scene/1 files (table + DESIGN.md JSON)"
 
 
@@ -14,11 +16,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from mmatch.ego.registry import ALIGNERS, DEFAULT_ALIGNER, DEFAULT_MATCHER, MATCHERS
     p.add_argument("folder", help="folder of *.npz scene files")
     p.add_argument("--json", help="write the report here")
-    p.add_argument("--matcher", default=DEFAULT_MATCHER, choices=sorted(MATCHERS))
-    p.add_argument("--aligner", default=DEFAULT_ALIGNER, choices=sorted(ALIGNERS))
+    p.add_argument("--matcher", default=DEFAULT_MATCHER, choices=sorted(MATCHERS),
+                   help="which vehicles both views share")
+    p.add_argument("--aligner", default=DEFAULT_ALIGNER, choices=sorted(ALIGNERS),
+                   help="the transform between the two radars")
     p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
                    help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
-    p.add_argument("--jobs", type=int, default=1, help="worker processes")
+    p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
     p.add_argument("--descriptor-scale", type=_scale, default=None, metavar="auto|FACTOR",
                    help="factor on appearance-descriptor distances; auto (default): measured on the "
                         "folder without labels; 1: as the files have them")
@@ -38,17 +42,21 @@ def _scale(text: str) -> float | None:
 
 def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
+    from mmatch.errors import ParseError
     from mmatch.evaluate import EvalConfig, evaluate_dir, format_table
 
     if not Path(args.folder).is_dir():
-        print(f"mmatch eval: error: {args.folder} is not a folder", file=sys.stderr)
-        return 2
+        raise ParseError(f"{args.folder} is not a folder")
+    if not any(Path(args.folder).glob("*.npz")):
+        raise ParseError(f"{args.folder}: no *.npz scene files (make some with `mmatch sim --out DIR`)")
     cfg = EvalConfig(matcher=args.matcher, aligner=args.aligner, cav=args.cav,
                      descriptor_scale=args.descriptor_scale)
     rep, results = evaluate_dir(args.folder, cfg, args.jobs, Progress("eval"))
     for r in results:
         if "rejected" in r:
             print(f"rejected: {r['rejected']}", file=sys.stderr)
+    if rep["scenes"] == 0:
+        raise ParseError(f"{args.folder}: every scene file ({rep['rejected']}) was rejected")
     print(format_table(rep))
     if args.json:
         out = Path(args.json)

@@ -6,22 +6,27 @@ import argparse
 import json
 from pathlib import Path
 
+from mmatch.edge.commands.args import positive_int
+
 HELP = "simulate mmatch-scene/1 files (easy, hard or mixed) and print their realism figures"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--n", type=int, default=200, help="number of scene pairs")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--mode", choices=["easy", "hard", "mixed"], default="mixed")
-    p.add_argument("--jobs", type=int, default=1, help="worker processes")
+    p.add_argument("--out", required=True, help="output folder (created; must not be a file)")
+    p.add_argument("--n", type=positive_int, default=200, help="number of scene pairs")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the first scene")
+    p.add_argument("--mode", choices=["easy", "hard", "mixed"], default="mixed", help="difficulty")
+    p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
 
 
 def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
     from mmatch.sim.generate import generate
     from mmatch.sim.realism import check_targets, realism_figures
+    from mmatch.errors import ConfigError
 
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise ConfigError(f"--out {args.out}: exists and is not a folder")
     scenes = generate(args.out, args.n, args.seed, args.mode, args.jobs, Progress("sim"))
     fig = realism_figures(scenes)
     ok = check_targets(fig)

@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
 
-from mmatch.edge.commands import egomotion as command
+from mmatch.edge.cli import main
 from mmatch.scene_io import RADAR_FORMAT, save_radar_frame
 
 from .synth import make_frame
 
 
 def run_command(argv: list[str]) -> int:
-    p = argparse.ArgumentParser()
-    command.add_arguments(p)
-    return command.run(p.parse_args(argv))
+    """The command as `mmatch egomotion ...` runs it (errors become exit codes there)."""
+    return main(["egomotion", *argv])
 
 
 def write_bad(path, **arrays):
