@@ -63,7 +63,11 @@ def _views(scene: Scene, cfg: EvalConfig):
 
 
 def evaluate_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> dict:
-    """Run one frame pair; returns status, errors, pair counts, payload bytes and stage timings (ms)."""
+    """Run one frame pair; returns status, errors, pair counts, payload bytes and stage timings (ms).
+
+    Also the estimate itself, for pictures and reports: "T_ego_cav" (4x4 nested list, or None)
+    and "box_pairs" (the predicted pairs as [ego box, cav box] indices of the scene file).
+    """
     from mmatch.codec import decode, encode
     from mmatch.ego.base import MatchContext
 
@@ -83,9 +87,11 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> dict:
     out = {"scene": scene.name, "status": result.status, "reason": result.reason,
            "tp": tp, "predicted": npred, "gt_pairs": ngt, "payload_bytes": len(payload),
            "stages_ms": stages, "rre_deg": None, "rte_m": None, "success": False}
+    out["box_pairs"] = box_pairs.astype(int).tolist()
+    out["T_ego_cav"] = None
     if result.T_ego_cav is not None:
         rre, rte = rre_deg(scene.gt_T_ego_cav, result.T_ego_cav), rte_m(scene.gt_T_ego_cav, result.T_ego_cav)
-        out.update(rre_deg=rre, rte_m=rte, success=is_success(rre, rte))
+        out.update(rre_deg=rre, rte_m=rte, success=is_success(rre, rte), T_ego_cav=result.T_ego_cav.tolist())
     return out
 
 
@@ -104,6 +110,11 @@ def _evaluate_file(args: tuple[str, EvalConfig]) -> dict:
                "rte_m": None, "success": False}
     res["file"] = path
     return res
+
+
+def evaluate_file(path: str, cfg: EvalConfig) -> dict:
+    """One scene file as `evaluate_dir` runs it: the per-scene result, or {"file", "rejected"}."""
+    return _evaluate_file((path, cfg))
 
 
 def folder_descriptor_scale(files: list[str]) -> float:
