@@ -42,13 +42,17 @@ def _scale(text: str) -> float | None:
 
 def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
-    from mmatch.errors import ParseError
+    from mmatch.ego.align.baselines import missing_extra
+    from mmatch.errors import ConfigError, ParseError
     from mmatch.evaluate import EvalConfig, evaluate_dir, format_table
 
     if not Path(args.folder).is_dir():
         raise ParseError(f"{args.folder} is not a folder")
     if not any(Path(args.folder).glob("*.npz")):
         raise ParseError(f"{args.folder}: no *.npz scene files (make some with `mmatch sim --out DIR`)")
+    why = missing_extra(args.aligner)
+    if why:
+        raise ConfigError(why)
     cfg = EvalConfig(matcher=args.matcher, aligner=args.aligner, cav=args.cav,
                      descriptor_scale=args.descriptor_scale)
     rep, results = evaluate_dir(args.folder, cfg, args.jobs, Progress("eval"))

@@ -9,11 +9,22 @@ from mmatch.errors import ConfigError
 MATCHERS: dict[str, str] = {
     "oracle": "mmatch.ego.match.oracle:OracleMatcher",
     "consensus": "mmatch.ego.match.consensus:ConsensusMatcher",
+    "none": "mmatch.ego.match.none:NoMatcher",
 }
 ALIGNERS: dict[str, str] = {
     "centroid-icp": "mmatch.ego.align.centroid_icp:CentroidICPAligner",
     "anchored-icp": "mmatch.ego.align.anchored:AnchoredICPAligner",
     "constrained": "mmatch.ego.align.constrained:ConstrainedAligner",
+    "paper": "mmatch.ego.align.paper:PaperAligner",
+    "icp-all": "mmatch.ego.align.icp_ablation:ICPAllAligner",
+    "icp-bg": "mmatch.ego.align.icp_ablation:ICPBackgroundAligner",
+    "icp-veh": "mmatch.ego.align.icp_ablation:ICPVehicleAligner",
+    "icp-pair": "mmatch.ego.align.icp_ablation:ICPPairAligner",
+    # point-cloud peers, `baselines` extra (run them with the `none` matcher)
+    "o3d-icp": "mmatch.ego.align.baselines:O3DICPAligner",
+    "o3d-fgr": "mmatch.ego.align.baselines:O3DFGRAligner",
+    "o3d-ransac": "mmatch.ego.align.baselines:O3DRansacAligner",
+    "gicp": "mmatch.ego.align.baselines:GICPAligner",
 }
 DEFAULT_MATCHER = "consensus"
 DEFAULT_ALIGNER = "constrained"
