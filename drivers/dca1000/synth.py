@@ -1,4 +1,5 @@
-"""FMCW raw-ADC synthesiser: point targets -> complex int16 cube / raw LVDS frames.
+"""FMCW raw-ADC synthesiser: point targets (and vehicles as several scatterers per range-Doppler
+cell, `extended_target`) -> complex int16 cube / raw LVDS frames.
 
 Model (complex baseband, TI complex1x: a target appears at a positive beat frequency):
 for chirp c (frame order; loop l = c // T, slot k = c % T, TX = tx_order[k]) starting at
@@ -8,7 +9,8 @@ start, and virtual channel position p (lambda/2 units, see antenna.py),
     phase = 2 pi (f0 + S t_n) * 2 R(t_c) / c  -  pi (p . u)        R(t_c) = R0 + v t_c
 
 so the range grows with v > 0 (Doppler positive = range increasing, DESIGN.md) and a target to
-the right (u_x > 0) lags on antennas further right. Intra-chirp motion is neglected.
+the right (u_x > 0) lags on antennas further right. Intra-chirp motion is neglected. The
+slow-time factor is computed once per distinct velocity (targets of one velocity share it).
 Amplitude: `snr_db` is the target power over the noise power of one complex ADC sample of one
 channel (the DSP adds ~10 log10(samples * chirps * channels) of processing gain).
 """
@@ -46,6 +48,43 @@ class Target:
         )
 
 
+def extended_target(
+    rng: np.random.Generator,
+    range_m: float,
+    velocity_mps: float,
+    azimuth_deg: float,
+    elevation_deg: float,
+    width_m: float,
+    height_m: float,
+    snr_db: float,
+    num_scatterers: int,
+    depth_m: float = 0.2,
+) -> list[Target]:
+    """The part of a vehicle that falls in one range-Doppler cell: `num_scatterers` point
+    scatterers spread uniformly over a face `width_m` wide and `height_m` high (centred on
+    azimuth/elevation; its angular extent is width / range by height / range) and `depth_m`
+    deep (well within a range bin; the sub-wavelength path differences give the scatterers
+    independent phases), all at one radial velocity. Their powers are exponentially distributed
+    (no scatterer dominates on purpose) and sum to `snr_db` (dB over one ADC sample's noise)."""
+    if num_scatterers < 1 or range_m <= 0 or width_m < 0 or height_m < 0:
+        raise ValueError("extended_target needs >= 1 scatterer, range > 0, sizes >= 0")
+    power = rng.exponential(1.0, num_scatterers)
+    power /= power.sum()
+    ext_az = math.degrees(width_m / range_m)
+    ext_el = math.degrees(height_m / range_m)
+    du = rng.uniform(-0.5, 0.5, (num_scatterers, 3))
+    return [
+        Target(
+            range_m + depth_m * du[i, 0],
+            velocity_mps,
+            azimuth_deg + ext_az * du[i, 1],
+            elevation_deg + ext_el * du[i, 2],
+            snr_db + 10.0 * math.log10(max(power[i], 1e-12)),
+        )
+        for i in range(num_scatterers)
+    ]
+
+
 def centre_frequency_hz(chirp) -> float:
     """Frequency (Hz) at the middle of the ADC sampling window; the lambda of the array spacing."""
     mid_us = chirp.adc_start_time_us + 0.5 * chirp.num_adc_samples / (chirp.sample_rate_ksps * 1e-3)
@@ -78,26 +117,44 @@ def synth_cube(
     t_n = chirp.adc_start_time_us * 1e-6 + np.arange(N) / fs  # (N,)
     t_c = np.arange(L * T) * tc + frame_index * chirp.frame_period_ms * 1e-3  # (C,)
     pos = layout.virtual_positions(geom.tx_order, geom.rx).reshape(T, R, 2)  # slot, rx, (x, z)
-    cube = np.zeros((L * T, R, N), dtype=np.complex128)
+    cube = np.zeros((L, T, R, N), dtype=np.complex64)
     freq_n = 2.0 * (f0 + s_hz * t_n) / C  # cycles per metre
-    for tg in targets:
-        az, el = math.radians(tg.azimuth_deg), math.radians(tg.elevation_deg)
-        ux, uz = math.sin(az) * math.cos(el), math.sin(el)
-        amp = noise_lsb * 10 ** (tg.snr_db / 20.0)
-        r_c = tg.range_m + tg.velocity_mps * t_c  # (C,)
-        slot = np.arange(L * T) % T
-        ang = -0.5 * (pos[..., 0] * ux + pos[..., 1] * uz)  # (T, R) cycles
-        cycles = r_c[:, None, None] * freq_n[None, None, :] + ang[slot][:, :, None]
-        cycles -= np.floor(cycles)
-        cube += amp * np.exp(2j * np.pi * cycles)
+    if targets:
+        rng_m = np.array([tg.range_m for tg in targets])
+        vel = np.array([tg.velocity_mps for tg in targets])
+        az = np.radians([tg.azimuth_deg for tg in targets])
+        el = np.radians([tg.elevation_deg for tg in targets])
+        amp = noise_lsb * 10 ** (np.array([tg.snr_db for tg in targets]) / 20.0)
+        ux, uz = np.sin(az) * np.cos(el), np.sin(el)
+        # exp(2 pi i (R0 + v t_c) f_n) = exp(2 pi i R0 f_n) exp(2 pi i v t_c f_n): the fast-time
+        # term per target, the slow-time term once per distinct velocity
+        fast = amp[:, None] * _cis(np.outer(rng_m, freq_n))  # (K, N)
+        ang = -0.5 * (ux[:, None, None] * pos[None, ..., 0] + uz[:, None, None] * pos[None, ..., 1])
+        space = _cis(ang)  # (K, T, R)
+        fast = fast.astype(np.complex64)
+        vs, group = np.unique(vel, return_inverse=True)
+        for g, v in enumerate(vs):
+            sel = group == g
+            summed = (space[sel].reshape(-1, T * R).T @ fast[sel]).reshape(T, R, N)
+            slow = _cis(v * t_c.reshape(L, T)[..., None] * freq_n)  # (L, T, N)
+            cube += slow[:, :, None, :] * summed[None]
+    cube = cube.reshape(L * T, R, N)
+    flat = cube.view(np.float32)  # I, Q interleaved
     if noise_lsb > 0:
-        sigma = noise_lsb / math.sqrt(2.0)
-        cube += sigma * (rng.standard_normal(cube.shape) + 1j * rng.standard_normal(cube.shape))
+        flat += (noise_lsb / math.sqrt(2.0)) * rng.standard_normal(flat.shape, dtype=np.float32)
     if quantise:
-        cube = np.clip(np.rint(cube.real), -32768, 32767) + 1j * np.clip(
-            np.rint(cube.imag), -32768, 32767
-        )
-    return cube.reshape(L, T * R, N).astype(np.complex64)
+        np.clip(np.rint(flat, out=flat), -32768, 32767, out=flat)
+    return cube.reshape(L, T * R, N)
+
+
+def _cis(cycles: np.ndarray) -> np.ndarray:
+    """exp(2 pi i cycles) as complex64 (whole cycles removed in float64 first, so a phase of
+    thousands of cycles keeps its sub-cycle precision)."""
+    frac = (2.0 * np.pi * (cycles - np.floor(cycles))).astype(np.float32)
+    out = np.empty(frac.shape, dtype=np.complex64)
+    out.real = np.cos(frac)
+    out.imag = np.sin(frac)
+    return out
 
 
 def synth_raw_frames(
