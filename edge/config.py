@@ -128,6 +128,17 @@ class EgoSection:
                          doc="live only: wait for a CAV frame closer in time until own capture + this, s")
     track_max_age_s: float = _opt(2.0, lo=0.0, hi=60.0,
                                   doc="carry each CAV's transform across frames this long (0: off), s")
+    max_links: int = _opt(8, lo=1, hi=256,
+                          doc="every-CAV mode (cavs = []): at most this many CAVs at once; more are refused")
+    link_expire_s: float = _opt(30.0, lo=0.0, lo_open=True, hi=3600.0,
+                                doc="every-CAV mode: a CAV silent this long is forgotten (frees its link), s")
+    frame_budget_s: float = _opt(0.04, lo=0.0, lo_open=True, hi=10.0,
+                                 doc="live only: no further CAV is fused once a frame has taken this long, s")
+    max_vehicles: int = _opt(64, lo=1, hi=65535, doc="a received frame with more vehicles is refused")
+    max_points: int = _opt(2048, lo=0, hi=65535, doc="... with more vehicle points is refused")
+    max_background: int = _opt(2048, lo=0, hi=65535, doc="... with more background points is refused")
+    max_range_m: float = _opt(150.0, lo=1.0, hi=327.67,
+                              doc="... with a position, centre or depth beyond this (the radar's range), m")
 
 
 @dataclass(frozen=True)
@@ -156,6 +167,23 @@ class LogSection:
 
 
 @dataclass(frozen=True)
+class AuthSection:
+    """Signing keys and the fleet trust file (edge/auth.py); `mmatch keys` makes them."""
+
+    keys: str = _opt("auto", choices=("auto", "dev", "files"),
+                     doc="files: key_file and trust_file; dev: keys generated on this machine in "
+                         "dev_dir (simulation only, flagged in health); auto: dev for a simulated "
+                         "radar without key_file, else files")
+    key_file: str = _opt("", doc="this vehicle's Ed25519 private key (PEM), from `mmatch keys`")
+    trust_file: str = _opt("", doc="the fleet's public keys (TOML); re-read on change or SIGHUP")
+    dev_dir: str = _opt("", doc="dev keys folder; empty = ~/.cache/mmatch/dev-keys")
+    ahead_s: float = _opt(0.05, lo=0.0, hi=10.0,
+                          doc="accept stamps at most this far ahead of our clock (clock error), s")
+    behind_s: float = _opt(0.15, lo=0.0, lo_open=True, hi=60.0,
+                           doc="refuse frames stamped longer ago than this (pairing window + transit), s")
+
+
+@dataclass(frozen=True)
 class HealthSection:
     watchdog: bool = _opt(True, doc="send WATCHDOG=1 when systemd asks for it")
 
@@ -172,6 +200,7 @@ class VehicleConfig:
     ego: EgoSection = field(default_factory=EgoSection)
     loop: LoopSection = field(default_factory=LoopSection)
     log: LogSection = field(default_factory=LogSection)
+    auth: AuthSection = field(default_factory=AuthSection)
     health: HealthSection = field(default_factory=HealthSection)
 
     @property
@@ -275,8 +304,17 @@ def _cross_checks(cfg: VehicleConfig) -> None:
                 raise ConfigError(f"zenoh.{key}[{i}]: {ep!r} is not an endpoint like tcp/127.0.0.1:7447")
     if cfg.log.floor_mb > cfg.log.raw_floor_mb:
         raise ConfigError("log.floor_mb: must be <= log.raw_floor_mb (raw data stops first)")
+    if cfg.auth.behind_s < cfg.ego.pair_tolerance_s:
+        raise ConfigError("auth.behind_s: must be >= ego.pair_tolerance_s (frames that could still pair)")
     if cfg.sim.phase_s >= 1.0 / cfg.sim.rate_hz:
         raise ConfigError("sim.phase_s: must be shorter than one frame period (1 / sim.rate_hz)")
+
+
+def auth_mode(cfg: VehicleConfig) -> str:
+    """"dev" or "files": how this vehicle gets its keys (AuthSection.keys resolved)."""
+    if cfg.auth.keys != "auto":
+        return cfg.auth.keys
+    return "dev" if cfg.radar.source == "sim" and not cfg.auth.key_file else "files"
 
 
 def from_dict(data: dict, *, source: str = "<dict>") -> VehicleConfig:

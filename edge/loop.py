@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import collections
 import gc
-import json
 import logging
 import queue
 import threading
@@ -23,10 +22,11 @@ from typing import Any
 import numpy as np
 
 from mmatch.edge import keys, logschema
+from mmatch.edge.auth import Identity, Sequence, seal_message, verifier_for
 from mmatch.edge.config import VehicleConfig
 from mmatch.edge.health import Notifier, RateCounter, format_status, watchdog_interval
 from mmatch.edge.logschema import SensorFrame
-from mmatch.edge.node import Node
+from mmatch.edge.node import Node, dumps
 from mmatch.edge.pipeline import Pipeline
 from mmatch.edge.sources.base import CameraSource, EndOfStream, RadarSource
 from mmatch.edge.sources.replay import RECORDED_DETECTIONS
@@ -158,7 +158,8 @@ class VehicleLoop:
 
     def __init__(self, cfg: VehicleConfig, radar: RadarSource, camera: CameraSource,
                  pipeline: Pipeline | None, *, transport: Any = None, recorder: Any = None,
-                 notifier: Notifier | None = None, process: bool = True) -> None:
+                 notifier: Notifier | None = None, process: bool = True,
+                 identity: Identity | None = None) -> None:
         self.cfg = cfg
         self.radar = radar
         self.camera = camera
@@ -166,6 +167,8 @@ class VehicleLoop:
         self.recorder = recorder
         self.notifier = notifier or Notifier()
         self.process = process
+        self.identity = identity
+        self._health_seq = Sequence()
         self.stop = threading.Event()
         lossless = radar.lossless
         # recording only does little per frame: a deep queue keeps bursts (several frames in
@@ -186,8 +189,13 @@ class VehicleLoop:
             assert pipeline is not None
             publish = self._publish if transport is not None else None
             height = getattr(radar, "radar_height", cfg.radar.height_m)
+            signer = identity.signer if identity is not None else None
+            verifier = None
+            if identity is not None and identity.trust is not None:
+                verifier = verifier_for(cfg, identity.trust)
             self.node = Node(cfg, pipeline, camera.camera, height, publish=publish, recorder=recorder,
-                             wait_s=cfg.ego.wait_s)
+                             wait_s=cfg.ego.wait_s, signer=signer, verifier=verifier,
+                             budget_s=cfg.ego.frame_budget_s)
             self.node.on_result = self._on_result
         if recorder is not None and hasattr(camera, "camera"):
             height = getattr(radar, "radar_height", cfg.radar.height_m)
@@ -215,7 +223,8 @@ class VehicleLoop:
             else:
                 keyexpr = keys.all_of("shared")
             self.transport.subscribe(keyexpr, "shared", self.node.on_shared,
-                                     vehicles=list(cfg.ego.cavs) or None)
+                                     vehicles=list(cfg.ego.cavs) or None,
+                                     max_payload=self.node.limits.max_frame_bytes)
         if self.node is not None:
             self.node.warm_up()
         gc.collect()
@@ -309,6 +318,10 @@ class VehicleLoop:
                                "drops": drops, "counters": counters}
         if self.node is not None:
             out["node"] = self.node.summary()
+            if self.node.verifier is not None:
+                out["rx_checks"] = self.node.verifier.snapshot()
+        if self.identity is not None:
+            out["auth"] = self.identity.describe()
         if self.recorder is not None:
             out["recorder"] = self.recorder.stats()
         return out
@@ -323,7 +336,11 @@ class VehicleLoop:
         self.notifier.status(text)
         if self.transport is not None:
             try:
-                self.transport.put(keys.health(self.cfg.vehicle.id), json.dumps(h).encode())
+                data = dumps(h)
+                if self.identity is not None:
+                    data = seal_message(self.identity.signer, "health", data, self._health_seq.next(),
+                                        time.time())
+                self.transport.put(keys.health(self.cfg.vehicle.id), data)
             except Exception as exc:
                 log.debug("health publish failed: %s", exc)
         if self.recorder is not None:

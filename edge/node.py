@@ -6,6 +6,16 @@ frame closest in capture time within `ego.pair_tolerance_s` from each CAV, fuses
 publishes the fused result (`mmatch/v1/<id>/fused`, JSON). `Node.on_shared(vehicle,
 payload)` takes a received shared frame.
 
+Trust (edge/auth.py): live, every received frame goes through a `Verifier` (signature by a
+fleet key, sequence number, stamp window, caps; refusals counted by reason) and everything
+this vehicle publishes is signed by its `Signer`. A replay reads frames the live run had
+verified before logging them, so it checks their structure and caps only.
+
+"Every CAV" mode (`ego.cavs = []`) takes any vehicle of the trust file, at most
+`ego.max_links` at once; a CAV silent for `ego.link_expire_s` is forgotten. Live, fusion
+starts no further CAV once a frame has taken `ego.frame_budget_s` (the skipped ones are
+named in the message and counted).
+
 Link loss: a CAV whose newest frame is older (in capture time) than `ego.link_timeout_s`
 is flagged lost; the Ego then publishes its own perception with `single_vehicle: true`
 and fuses again as soon as frames return. Everything that decides a result is judged on
@@ -16,8 +26,10 @@ saw them, so replaying a log through a Node reproduces the live results.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import json
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -26,7 +38,9 @@ from typing import Any
 
 import numpy as np
 
+from mmatch import codec
 from mmatch.edge import keys, logschema
+from mmatch.edge.auth import Rejected, Sequence, Signer, Verifier, limits_of, seal_message
 from mmatch.edge.config import VehicleConfig
 from mmatch.edge.logschema import SensorFrame
 from mmatch.edge.pipeline import Pipeline
@@ -36,9 +50,6 @@ from mmatch.types import CameraModel
 log = logging.getLogger(__name__)
 
 PublishFn = Callable[[str, bytes], None]
-
-#: received frames stamped further ahead of our clock are refused (unsynchronised sender), s
-MAX_FUTURE_S = 1.0
 
 
 @dataclass
@@ -50,6 +61,8 @@ class LinkState:
     frames: int = 0
     gaps: int = 0
     ever_up: bool = False
+    confidence: float | None = None   # of the latest fusion with this CAV (null: no estimate)
+    ambiguity: float | None = None
 
 
 @dataclass
@@ -62,10 +75,51 @@ class NodeCounters:
     no_estimate: int = 0
     rx: int = 0
     rx_rejected: dict[str, int] = field(default_factory=lambda: collections.Counter())
+    budget_skipped: int = 0
+    links_expired: int = 0
 
 
 def _jsonable_matrix(T: Any) -> list | None:
     return None if T is None else np.asarray(T, dtype=np.float64).reshape(4, 4).tolist()
+
+
+def _number(x: Any) -> float | None:
+    """A finite float, or None (JSON null) for NaN, infinity or no value."""
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def _covariance(c: Any) -> list | None:
+    """A 3x3 (x m, y m, yaw rad) covariance as nested lists, non-finite entries as null."""
+    if c is None:
+        return None
+    a = np.asarray(c, dtype=np.float64)
+    if a.shape != (3, 3):
+        return None
+    return [[_number(v) for v in row] for row in a]
+
+
+def _finite(x: Any) -> Any:
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
+
+
+def dumps(msg: dict) -> bytes:
+    """Compact JSON of a message; NaN and infinity become null (JSON has neither)."""
+    try:
+        return json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+    except ValueError:
+        return json.dumps(_finite(msg), separators=(",", ":"), allow_nan=False).encode()
+
+
 
 
 class Node:
@@ -73,7 +127,9 @@ class Node:
 
     def __init__(self, cfg: VehicleConfig, pipeline: Pipeline, camera: CameraModel,
                  radar_height: float, *, publish: PublishFn | None = None, recorder: Any = None,
-                 wait_s: float = 0.0, clock: Callable[[], float] = time.time) -> None:
+                 wait_s: float = 0.0, clock: Callable[[], float] = time.time,
+                 signer: Signer | None = None, verifier: Verifier | None = None,
+                 budget_s: float | None = None) -> None:
         self.cfg = cfg
         self.id = cfg.vehicle.id
         self.pipeline = pipeline
@@ -83,6 +139,11 @@ class Node:
         self.recorder = recorder
         self.wait_s = wait_s
         self.clock = clock
+        self.signer = signer
+        self.verifier = verifier
+        self.budget_s = budget_s
+        self.limits = limits_of(cfg)
+        self._seq = {"shared": Sequence(), "fused": Sequence()}
         self.counters = NodeCounters()
         self.links: dict[str, LinkState] = {c: LinkState() for c in cfg.ego.cavs}
         self._inbox: dict[str, collections.deque] = {}
@@ -113,27 +174,42 @@ class Node:
 
     # ------------------------------------------------------------------ input
     def on_shared(self, vehicle: str, payload: bytes) -> None:
-        """A shared frame from `vehicle` (raises DecodeError for a bad one, after counting)."""
+        """A shared frame from `vehicle` (raises DecodeError for a bad one, after counting).
+
+        Live (a verifier is set): every check of edge/auth.py, cheap ones first. Replay (no
+        verifier): the frames were verified live before they were logged; structure and caps.
+        """
         if vehicle == self.id:
             return
+        rejected = self.counters.rx_rejected
         if self.cfg.ego.cavs and vehicle not in self.cfg.ego.cavs:
-            self.counters.rx_rejected["foreign"] += 1
+            rejected["foreign"] += 1
             return
-        try:
-            frame = self.pipeline.decode(payload)
-        except DecodeError:
-            self.counters.rx_rejected["malformed"] += 1
-            raise
-        if frame.sender != vehicle:
-            self.counters.rx_rejected["sender_mismatch"] += 1
-            raise DecodeError(f"frame from {frame.sender!r} published under {vehicle!r}")
-        if not np.isfinite(frame.stamp):
-            self.counters.rx_rejected["bad_stamp"] += 1
-            raise DecodeError("non-finite stamp")
-        if frame.stamp > self.clock() + MAX_FUTURE_S:  # a sender whose clock runs ahead
-            self.counters.rx_rejected["future_stamp"] += 1
-            raise DecodeError(f"stamp {frame.stamp - self.clock():.3f} s in the future (clock not synchronised?)")
+        if self.verifier is not None:
+            try:
+                frame = self.verifier.open_frame(vehicle, payload, self.pipeline.decode)
+            except Rejected as exc:
+                rejected[exc.reason] += 1
+                raise
+        else:
+            try:
+                codec.header(payload, self.limits)
+                frame = self.pipeline.decode(payload)
+                codec.check_range(frame, self.limits)
+            except codec.OverCaps:
+                rejected["caps"] += 1
+                raise
+            except DecodeError:
+                rejected["malformed"] += 1
+                raise
+            if frame.sender != vehicle:
+                rejected["sender_mismatch"] += 1
+                raise DecodeError(f"frame from {frame.sender!r} published under {vehicle!r}")
         with self._cond:
+            if (not self.cfg.ego.cavs and vehicle not in self.links and vehicle not in self._inbox
+                    and len(set(self.links) | set(self._inbox)) >= self.cfg.ego.max_links):
+                rejected["link_cap"] += 1
+                raise Rejected("link_cap", f"{vehicle!r}: already {self.cfg.ego.max_links} CAVs")
             if self.recorder is not None:
                 self.recorder.write(logschema.SHARED_RX_PREFIX + vehicle, payload, stamp=frame.stamp)
             box = self._inbox.get(vehicle)
@@ -153,11 +229,16 @@ class Node:
     def process(self, frame: SensorFrame) -> dict | None:
         """Run one own sensor frame through the pipeline; the fused message for an Ego."""
         self.counters.frames += 1
+        t_start = time.perf_counter()
         own, timings = self.pipeline.process_view(
             frame.points, frame.boxes, frame.features, self.camera, self.radar_height, frame.stamp,
             sender=self.id, seq=frame.seq)
         if self.cfg.is_cav:
-            data = self.pipeline.encode(own)
+            if self.signer is not None:  # wire seq: increasing across restarts (auth.Sequence)
+                data = self.pipeline.encode(dataclasses.replace(own, seq=self._seq["shared"].next()),
+                                            self.signer)
+            else:
+                data = self.pipeline.encode(own)
             if self.publish is not None:
                 self.publish(keys.shared(self.id), data)
                 self.counters.published_shared += 1
@@ -168,7 +249,7 @@ class Node:
         if not self.cfg.is_ego:
             return None
         choice = self._pair(frame)
-        return self._fuse(frame, own, timings, choice)
+        return self._fuse(frame, own, timings, choice, t_start)
 
     def _wanted(self, stamp: float) -> bool:
         """True while some live CAV may still deliver a frame closer to `stamp`."""
@@ -194,6 +275,7 @@ class Node:
                         break
                     self._cond.wait(left)
             self._log_frame(frame)  # the decision point: replay sees exactly these inputs
+            self._expire(frame.stamp)
             choice: dict[str, Any] = {}
             for name in sorted(set(self._inbox) | set(self.links)):
                 link = self.links.setdefault(name, LinkState())
@@ -215,13 +297,30 @@ class Node:
                     choice[name] = best
             return choice
 
+    def _expire(self, stamp: float) -> None:
+        """Every-CAV mode: forget CAVs silent for ego.link_expire_s (capture time). Under _cond."""
+        if self.cfg.ego.cavs:
+            return
+        for name in sorted(set(self.links) | set(self._inbox)):
+            box = self._inbox.get(name)
+            newest = box[-1].stamp if box else self.links[name].newest_stamp
+            if newest < stamp - self.cfg.ego.link_expire_s:
+                self.links.pop(name, None)
+                self._inbox.pop(name, None)
+                self.counters.links_expired += 1
+                log.info("link to %s expired (silent for %.0f s)", name, stamp - newest)
+
     def _fuse(self, frame: SensorFrame, own: Any, timings: dict[str, float],
-              choice: dict[str, Any]) -> dict:
+              choice: dict[str, Any], t_start: float) -> dict:
         cavs = []
         objects: list[np.ndarray] = []
         fuse_ms: dict[str, float] = {}
         results = []
+        skipped: list[str] = []
         for name, other in choice.items():
+            if self.budget_s is not None and time.perf_counter() - t_start > self.budget_s:
+                skipped.append(name)
+                continue
             t0 = time.perf_counter()
             res = self.pipeline.fuse(own, other)
             fuse_ms[name] = (time.perf_counter() - t0) * 1e3
@@ -229,7 +328,18 @@ class Node:
             cavs.append({"id": name, "seq": int(other.seq), "stamp": float(other.stamp),
                          "dt": float(other.stamp - frame.stamp), "status": res.status,
                          "reason": res.reason, "T_ego_cav": _jsonable_matrix(res.T_ego_cav),
-                         "pairs": np.asarray(res.pairs).reshape(-1, 2).astype(int).tolist()})
+                         "pairs": np.asarray(res.pairs).reshape(-1, 2).astype(int).tolist(),
+                         "confidence": _number(getattr(res, "confidence", None)),
+                         "covariance": _covariance(getattr(res, "covariance", None)),
+                         "ambiguity": _number(getattr(res, "ambiguity", None))})
+            link = self.links.get(name)
+            if link is not None:
+                link.confidence = cavs[-1]["confidence"]
+                link.ambiguity = cavs[-1]["ambiguity"]
+        if skipped:
+            self.counters.budget_skipped += len(skipped)
+            log.warning("frame %d: over the %.0f ms budget, not fused with %s", frame.seq,
+                        self.budget_s * 1e3, ", ".join(skipped))
         fused = [r for r in results if r[2].status == "fused"]
         if fused:
             status = "fused"
@@ -258,9 +368,13 @@ class Node:
             "timings_ms": {**{k: float(v) for k, v in timings.items()},
                            **{f"fuse:{k}": v for k, v in fuse_ms.items()}},
         }
+        if skipped:
+            msg["budget_skipped"] = skipped
         msg["latency_ms"] = (self.clock() - frame.stamp) * 1e3
-        data = json.dumps(msg, separators=(",", ":")).encode()
         if self.publish is not None:
+            data = dumps(msg)
+            if self.signer is not None:
+                data = seal_message(self.signer, "fused", data, self._seq["fused"].next(), frame.stamp)
             self.publish(keys.fused(self.id), data)
         if self.recorder is not None:
             self.recorder.write(logschema.FUSED, msg, stamp=frame.stamp)
@@ -273,7 +387,9 @@ class Node:
         c = self.counters
         return {"frames": c.frames, "fused": c.fused, "paired": c.paired, "single": c.single,
                 "no_estimate": c.no_estimate, "rx": c.rx, "rx_rejected": dict(c.rx_rejected),
-                "links": {n: {"up": s.up, "gaps": s.gaps} for n, s in self.links.items()}}
+                "budget_skipped": c.budget_skipped, "links_expired": c.links_expired,
+                "links": {n: {"up": s.up, "gaps": s.gaps, "confidence": s.confidence,
+                              "ambiguity": s.ambiguity} for n, s in self.links.items()}}
 
 
 def comparable(msg: dict) -> dict:

@@ -240,12 +240,16 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
                 prefix=f"replay-{cfg.vehicle.id}", config_text=cfgmod.to_toml(cfg)))
             recorder.set_metadata("camera", logschema.camera_to_meta(camera, height))
         transport = stack.enter_context(Transport(cfg.zenoh)) if publish else None
+        signer = None
+        if publish:  # results published "as live" are signed as live; the inputs were verified live
+            from mmatch.edge.auth import identity
+            signer = identity(cfg, need_trust=False).signer
         node = None
         pipeline = default_pipeline(need_fuse=cfg.is_ego, track_max_age_s=cfg.ego.track_max_age_s) if process else None
 
         def fresh_node() -> Node:
             n = Node(cfg, pipeline, camera, height, publish=transport.put if transport else None,
-                     recorder=recorder)
+                     recorder=recorder, signer=signer)
             n.on_result = fused.append
             return n
 

@@ -5,8 +5,9 @@ a `zenohd` router (cfg/zenoh/router.json5). Multicast scouting, gossip and share
 are off unless the config turns them on (LIBRARIES.md section 2: the defaults listen on
 every interface and scout by multicast). Key expressions come from `mmatch.edge.keys`.
 
-Incoming samples are handed to a callback on a Zenoh thread; a payload on a foreign key
-or one the decoder rejects is dropped and counted, never raised.
+Incoming samples are handed to a callback on a Zenoh thread; a payload on a foreign key,
+one larger than `max_payload` (checked before it is copied) or one the receiver refuses is
+dropped and counted by reason, never raised.
 """
 
 from __future__ import annotations
@@ -227,7 +228,7 @@ class Transport:
 
     def subscribe(self, keyexpr: str, kind: str,
                   on_payload: Callable[[str, bytes], None],
-                  vehicles: list[str] | None = None) -> None:
+                  vehicles: list[str] | None = None, max_payload: int | None = None) -> None:
         """Call `on_payload(vehicle, payload)` for every sample on `keyexpr`.
 
         Samples whose key is not `mmatch/v1/<vehicle>/<kind>` (or whose vehicle is not in
@@ -242,6 +243,9 @@ class Transport:
                 self.drops.add("foreign")
                 return
             try:
+                if max_payload is not None and len(sample.payload) > max_payload:
+                    self.drops.add("size")
+                    return
                 payload = sample.payload.to_bytes()
             except Exception:
                 self.drops.add("malformed")
@@ -249,8 +253,8 @@ class Transport:
             try:
                 on_payload(parsed[0], payload)
             except DecodeError as exc:
-                self.drops.add("malformed")
-                log.debug("dropped malformed payload from %s: %s", parsed[0], exc)
+                self.drops.add(getattr(exc, "reason", "malformed"))
+                log.debug("dropped payload from %s: %s", parsed[0], exc)
             except Exception:  # a bug in the handler must not kill zenoh's thread silently
                 self.drops.add("handler-error")
                 log.exception("subscriber handler failed on %s", sample.key_expr)

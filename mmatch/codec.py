@@ -1,9 +1,10 @@
-"""Wire codec of the shared frame (DESIGN.md "Wire format of a shared frame"), format version 1.
+"""Wire codec of the shared frame (DESIGN.md "Wire format of a shared frame"), format version 2.
 
-Binary, little-endian, length-prefixed, CRC-32 checked, quantised:
+Binary, little-endian, length-prefixed, signed by the sender (Ed25519), quantised:
 
-    header   magic b"MMSF" | version u8 (=1) | flags u8 (=0) | total length u32 (whole frame, bytes)
-    meta     sender length u8 | sender UTF-8 (<= 64 bytes) | seq u32 | stamp f64 (s)
+    header   magic b"MMSF" | version u8 (=2) | flags u8 (=0) | total length u32 (whole frame, bytes)
+             | key id 8 bytes (first 8 bytes of SHA-256 of the sender's raw Ed25519 public key)
+    meta     sender length u8 | sender UTF-8 (<= 64 bytes) | seq u64 | stamp f64 (s)
              | radar_height f32 (m) | ego vx, vy i16 (cm/s; -32768 = unknown/NaN)
              | vehicles V u16 | vehicle points K u16 | background points B u16
     vehicles V records: u1, v1, u2, v2 i16 (half pixels) | score u8 (round(s*255))
@@ -12,25 +13,36 @@ Binary, little-endian, length-prefixed, CRC-32 checked, quantised:
     points   K records, grouped by vehicle in vehicle order: x, y, z i16 (cm)
              | doppler i16 (cm/s) | snr u8 (half dB)
     backgr.  B records: x, y, z i16 (cm)
-    crc      u32: zlib.crc32 of every byte before it
+    sig      64 bytes: Ed25519 signature of every byte before it by the key named in the header
+
+An unsigned frame (offline evaluation, `encode` without a signer) carries an all-zero key id
+and signature; no receiver accepts it. Checking the signature, the sender's key, the sequence
+number and the stamp is the receiver's job (`mmatch.edge.auth`): `header` reads what those
+checks need without touching the records, so a receiver can refuse cheaply before it verifies.
+Version 1 (CRC-32, no signature) is not decoded any more: an unauthenticated frame is refused.
 
 Quantisation losses (round to nearest): positions and centres +-0.5 cm (range +-327.67 m);
 Doppler and ego velocity +-0.5 cm/s (+-327.67 m/s); box corners +-0.25 px (+-16383.5 px);
 depth +-0.5 cm (0-655.35 m); score +-1/510; snr +-0.25 dB, clipped to 0-127.5 dB (TI SNR is
 non-negative); descriptor bins +-1/510 each, clipped to 0-1, so a decoded group sums to 1
 only within 16/510 (hue) or 8/510 (saturation, value); radar height is float32 (+-6e-8
-relative); stamp is exact. A vehicle record costs 51 bytes, a point 9, a background point 6.
+relative); stamp is exact. A vehicle record costs 51 bytes, a point 9, a background point 6;
+header, meta and signature 119 bytes plus the sender.
 
-`encode` raises EncodeError for values the format cannot carry (out of range, NaN where a
-number is required, sender too long, more than 65535 items). `decode` trusts nothing: a
-wrong magic, version, flags, length, CRC, count, sender text or a non-finite stamp raises
-DecodeError, and no other exception escapes it.
+Caps (`Limits`): a frame is about one radar's view, so decoding refuses more than
+`max_vehicles` vehicles, `max_points` vehicle points or `max_background` background points
+(checked on the counts, before any record is read) and any position, centre or depth beyond
+`max_range_m`. `encode` raises EncodeError for values the format cannot carry (out of range,
+NaN where a number is required, sender too long, more than 65535 items). `decode` trusts
+nothing: a wrong magic, version, flags, length, count, sender text, a non-finite stamp or a
+cap exceeded raises DecodeError, and no other exception escapes it.
 """
 
 from __future__ import annotations
 
 import struct
-import zlib
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -39,13 +51,15 @@ from mmatch.shared import SharedFrame
 from mmatch.types import DESCRIPTOR_DIM
 
 MAGIC = b"MMSF"
-VERSION = 1
+VERSION = 2
 MAX_SENDER_BYTES = 64
 VELOCITY_UNKNOWN = -32768
+KEY_ID_BYTES = 8
+SIGNATURE_BYTES = 64
+NO_KEY = bytes(KEY_ID_BYTES)
 
-_HEADER = struct.Struct("<4sBBI")
-_META = struct.Struct("<IdfhhHHH")
-_CRC = struct.Struct("<I")
+_HEADER = struct.Struct("<4sBBI8s")
+_META = struct.Struct("<QdfhhHHH")
 
 VEHICLE_DTYPE = np.dtype([("box", "<i2", (4,)), ("score", "u1"), ("depth", "<u2"),
                           ("box_index", "<u2"), ("n_points", "<u2"), ("centre", "<i2", (2,)),
@@ -53,7 +67,61 @@ VEHICLE_DTYPE = np.dtype([("box", "<i2", (4,)), ("score", "u1"), ("depth", "<u2"
 POINT_DTYPE = np.dtype([("xyz", "<i2", (3,)), ("doppler", "<i2"), ("snr", "u1")])
 BACKGROUND_DTYPE = np.dtype([("xyz", "<i2", (3,))])
 
-MIN_FRAME_BYTES = _HEADER.size + 1 + _META.size + _CRC.size
+MIN_FRAME_BYTES = _HEADER.size + 1 + _META.size + SIGNATURE_BYTES
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Caps a decoder applies (a frame is about one radar's view, far below the format's limits).
+
+    max_vehicles, max_points (vehicle points), max_background: counts per frame;
+    max_range_m: largest |x|, |y|, |z| of any point or centre and largest box depth, m.
+    """
+
+    max_vehicles: int = 128
+    max_points: int = 4096
+    max_background: int = 4096
+    max_range_m: float = 327.68
+
+    @property
+    def max_frame_bytes(self) -> int:
+        """The largest frame these caps allow (sender at its longest)."""
+        return (MIN_FRAME_BYTES + MAX_SENDER_BYTES + self.max_vehicles * VEHICLE_DTYPE.itemsize
+                + self.max_points * POINT_DTYPE.itemsize
+                + self.max_background * BACKGROUND_DTYPE.itemsize)
+
+
+LIMITS = Limits()
+
+
+@dataclass(frozen=True)
+class FrameHeader:
+    """What a receiver checks before verifying: read from the fixed fields only.
+
+    counts: (V vehicles, K vehicle points, B background points); body_offset: where the
+    vehicle records start; stamp in s; seq uint64.
+    """
+
+    key_id: bytes
+    sender: str
+    seq: int
+    stamp: float
+    radar_height: float
+    velocity_q: tuple[int, int]
+    counts: tuple[int, int, int]
+    body_offset: int
+
+
+class Signer(Protocol):
+    """Anything that signs: `key_id` (8 bytes) and `sign(message) -> 64-byte signature`."""
+
+    key_id: bytes
+
+    def sign(self, message: bytes) -> bytes: ...
+
+
+class OverCaps(DecodeError):
+    """A frame beyond the decoder's `Limits` (too large, too many items, beyond the range)."""
 
 
 class EncodeError(MMatchError, ValueError):
@@ -81,8 +149,10 @@ def _rows(name: str, arr, cols: int) -> np.ndarray:
     return a.astype(np.float64)
 
 
-def encode(frame: SharedFrame) -> bytes:
-    """Serialise a SharedFrame (format version 1); raises EncodeError on unrepresentable values.
+def encode(frame: SharedFrame, signer: Signer | None = None) -> bytes:
+    """Serialise a SharedFrame (format version 2), signed by `signer` when given (else the key
+    id and signature are zero: an unsigned frame, for offline use). Raises EncodeError on
+    unrepresentable values.
 
     Vehicle points are written grouped by vehicle (stable order within a vehicle), so a decoded
     frame lists them in vehicle order.
@@ -90,8 +160,8 @@ def encode(frame: SharedFrame) -> bytes:
     sender = frame.sender.encode("utf-8")
     if len(sender) > MAX_SENDER_BYTES:
         raise EncodeError(f"sender: {len(sender)} UTF-8 bytes > {MAX_SENDER_BYTES}")
-    if not 0 <= int(frame.seq) < 2**32:
-        raise EncodeError(f"seq: {frame.seq} is not a uint32")
+    if not 0 <= int(frame.seq) < 2**64:
+        raise EncodeError(f"seq: {frame.seq} is not a uint64")
     if not np.isfinite(frame.stamp):
         raise EncodeError("stamp: not finite")
     if not np.isfinite(frame.radar_height):
@@ -150,63 +220,99 @@ def encode(frame: SharedFrame) -> bytes:
         _META.pack(int(frame.seq), float(frame.stamp), float(frame.radar_height), vq[0], vq[1],
                    V, len(pts), len(bgr)),
         veh.tobytes(), pts.tobytes(), bgr.tobytes()])
-    total = _HEADER.size + len(body) + _CRC.size
-    head = _HEADER.pack(MAGIC, VERSION, 0, total) + body
-    return head + _CRC.pack(zlib.crc32(head))
+    total = _HEADER.size + len(body) + SIGNATURE_BYTES
+    key_id = NO_KEY if signer is None else bytes(signer.key_id)
+    if len(key_id) != KEY_ID_BYTES:
+        raise EncodeError(f"signer: key id of {len(key_id)} bytes (expected {KEY_ID_BYTES})")
+    signed = _HEADER.pack(MAGIC, VERSION, 0, total, key_id) + body
+    signature = bytes(SIGNATURE_BYTES) if signer is None else bytes(signer.sign(signed))
+    if len(signature) != SIGNATURE_BYTES:
+        raise EncodeError(f"signer: signature of {len(signature)} bytes (expected {SIGNATURE_BYTES})")
+    return signed + signature
 
 
-def decode(data: bytes) -> SharedFrame:
-    """Parse and validate one encoded frame; any defect raises DecodeError (and nothing else)."""
-    try:
-        return _decode(data)
-    except DecodeError:
-        raise
-    except (struct.error, ValueError, TypeError, IndexError, OverflowError) as exc:  # belt and braces
-        raise DecodeError(f"malformed shared frame ({type(exc).__name__}: {exc})") from exc
+def split_signature(data: bytes) -> tuple[bytes, bytes]:
+    """(signed bytes, signature) of a frame whose header has been checked."""
+    return data[:-SIGNATURE_BYTES], data[-SIGNATURE_BYTES:]
 
 
-def _decode(data) -> SharedFrame:
+def header(data, limits: Limits = LIMITS) -> FrameHeader:
+    """Check the fixed fields and the counts of a frame without reading its records.
+
+    Refuses (DecodeError) a frame too short or beyond what `limits` allow, a wrong magic,
+    version, flags or length, a bad sender, a non-finite stamp, counts over the caps or
+    counts that do not fill the bytes exactly.
+    """
+    return _guarded(_header, data, limits)
+
+
+def _header(data, limits: Limits) -> FrameHeader:
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise DecodeError(f"expected bytes, got {type(data).__name__}")
-    buf = bytes(data)
-    n = len(buf)
+    n = len(data)
     if n < MIN_FRAME_BYTES:
         raise DecodeError(f"truncated: {n} bytes < the minimum {MIN_FRAME_BYTES}")
-    magic, version, flags, total = _HEADER.unpack_from(buf, 0)
+    if n > limits.max_frame_bytes:
+        raise OverCaps(f"too large: {n} bytes > {limits.max_frame_bytes} (the caps' largest frame)")
+    magic, version, flags, total, key_id = _HEADER.unpack_from(data, 0)
     if magic != MAGIC:
-        raise DecodeError(f"bad magic {magic!r} (expected {MAGIC!r})")
+        raise DecodeError(f"bad magic {bytes(magic)!r} (expected {MAGIC!r})")
     if version != VERSION:
         raise DecodeError(f"unsupported version {version} (this decoder reads {VERSION})")
     if flags != 0:
         raise DecodeError(f"unknown flags 0x{flags:02x}")
     if total != n:
         raise DecodeError(f"length field says {total} bytes, got {n}")
-    (crc,) = _CRC.unpack_from(buf, n - _CRC.size)
-    if zlib.crc32(buf[: n - _CRC.size]) != crc:
-        raise DecodeError("CRC-32 mismatch")
-
-    end = n - _CRC.size
+    end = n - SIGNATURE_BYTES
     off = _HEADER.size
-    slen = buf[off]
+    slen = data[off]
     off += 1
     if slen > MAX_SENDER_BYTES:
         raise DecodeError(f"sender length {slen} > {MAX_SENDER_BYTES}")
     if off + slen + _META.size > end:
         raise DecodeError("truncated meta block")
     try:
-        sender = buf[off:off + slen].decode("utf-8")
+        sender = bytes(data[off:off + slen]).decode("utf-8")
     except UnicodeDecodeError as exc:
         raise DecodeError(f"sender is not UTF-8 ({exc})") from exc
     off += slen
-    seq, stamp, height, vx, vy, V, K, B = _META.unpack_from(buf, off)
+    seq, stamp, height, vx, vy, V, K, B = _META.unpack_from(data, off)
     off += _META.size
     if not (np.isfinite(stamp) and np.isfinite(height)):
         raise DecodeError("stamp or radar_height is not finite")
+    if V > limits.max_vehicles or K > limits.max_points or B > limits.max_background:
+        raise OverCaps(f"over the caps: {V} vehicles, {K} points, {B} background points "
+                          f"(at most {limits.max_vehicles}, {limits.max_points}, {limits.max_background})")
     need = V * VEHICLE_DTYPE.itemsize + K * POINT_DTYPE.itemsize + B * BACKGROUND_DTYPE.itemsize
     if need != end - off:
         raise DecodeError(f"counts (V={V}, K={K}, B={B}) need {need} bytes, {end - off} remain")
     if (vx == VELOCITY_UNKNOWN) != (vy == VELOCITY_UNKNOWN):
         raise DecodeError("ego velocity half unknown")
+    return FrameHeader(bytes(key_id), sender, int(seq), float(stamp), float(height), (vx, vy),
+                       (V, K, B), off)
+
+
+def decode(data, limits: Limits = LIMITS) -> SharedFrame:
+    """Parse and validate one encoded frame's structure and caps; any defect raises DecodeError
+    (and nothing else). The signature is not checked here (see the module docstring)."""
+    return _guarded(_decode, data, limits)
+
+
+def _guarded(fn, data, limits: Limits):
+    """fn(data, limits), letting only DecodeError out."""
+    try:
+        return fn(data, limits)
+    except DecodeError:
+        raise
+    except (struct.error, ValueError, TypeError, IndexError, OverflowError) as exc:  # belt and braces
+        raise DecodeError(f"malformed shared frame ({type(exc).__name__}: {exc})") from exc
+
+
+def _decode(data, limits: Limits) -> SharedFrame:
+    h = _header(data, limits)
+    buf = bytes(data)
+    V, K, B = h.counts
+    off = h.body_offset
     veh = np.frombuffer(buf, VEHICLE_DTYPE, V, off)
     off += V * VEHICLE_DTYPE.itemsize
     pts = np.frombuffer(buf, POINT_DTYPE, K, off)
@@ -215,7 +321,7 @@ def _decode(data) -> SharedFrame:
     counts = veh["n_points"].astype(np.int64)
     if int(counts.sum()) != K:
         raise DecodeError(f"vehicles claim {int(counts.sum())} points, the frame holds {K}")
-
+    vx, vy = h.velocity_q
     if vx == VELOCITY_UNKNOWN:
         velocity = np.full(2, np.nan)
     else:
@@ -228,8 +334,8 @@ def _decode(data) -> SharedFrame:
     points[:, :3] = pts["xyz"].astype(np.float32) / 100.0
     points[:, 3] = pts["doppler"].astype(np.float32) / 100.0
     points[:, 4] = pts["snr"].astype(np.float32) / 2.0
-    return SharedFrame(
-        sender=sender, seq=int(seq), stamp=float(stamp), radar_height=float(height),
+    frame = SharedFrame(
+        sender=h.sender, seq=h.seq, stamp=h.stamp, radar_height=h.radar_height,
         ego_velocity=velocity,
         vehicle_points=points,
         vehicle_index=np.repeat(np.arange(V, dtype=np.int32), counts),
@@ -239,3 +345,14 @@ def _decode(data) -> SharedFrame:
         vehicle_features=veh["descriptor"].astype(np.float32) / 255.0,
         background=bgr["xyz"].astype(np.float32).reshape(B, 3) / 100.0,
     )
+    check_range(frame, limits)
+    return frame
+
+
+def check_range(frame: SharedFrame, limits: Limits = LIMITS) -> None:
+    """OverCaps when a point, centre or box depth of `frame` lies beyond `limits.max_range_m`."""
+    reach = limits.max_range_m + 0.005  # half a quantisation step
+    for name, a in (("vehicle points", frame.vehicle_points[:, :3]), ("vehicle centres", frame.vehicle_centers),
+                    ("background", frame.background), ("box depths", frame.vehicle_boxes[:, 5])):
+        if a.size and float(np.abs(a).max()) > reach:
+            raise OverCaps(f"{name} beyond the radar's range ({limits.max_range_m:g} m)")

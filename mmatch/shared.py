@@ -17,7 +17,8 @@ from mmatch.types import DESCRIPTOR_DIM
 class SharedFrame:
     """One CAV-side product, ready for the wire.
 
-    sender: vehicle id (UTF-8, <= 64 bytes on the wire); seq: sequence number (uint32).
+    sender: vehicle id (UTF-8, <= 64 bytes on the wire); seq: sequence number (uint64,
+    strictly increasing per sender, across restarts too: receivers refuse a seq not above the last).
     stamp: capture time of the radar frame, s, shared clock.
     radar_height: sender's radar mounting height above the road, m.
     ego_velocity: float64 (2,) sender radar velocity over ground (vx, vy), m/s, its frame.

@@ -1,21 +1,23 @@
-"""Wire codec of the shared frame: round trip to the quantisation step, and no bad frame accepted."""
+"""Wire codec of the shared frame (version 2): round trip to the quantisation step, caps, the
+signature covering every byte before it, and no malformed frame accepted. (Forged, tampered,
+replayed and stale frames are the receiver's checks: tests/edge/test_edge_auth.py.)"""
 
 from __future__ import annotations
 
+import hashlib
 import struct
-import zlib
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mmatch.codec import (BACKGROUND_DTYPE, MAGIC, POINT_DTYPE, VEHICLE_DTYPE, EncodeError, decode,
-                          encode)
+from mmatch.codec import (BACKGROUND_DTYPE, MAGIC, POINT_DTYPE, SIGNATURE_BYTES, VEHICLE_DTYPE,
+                          EncodeError, Limits, OverCaps, decode, encode, header, split_signature)
 from mmatch.errors import DecodeError
 from mmatch.shared import SharedFrame
 
-# quantisation steps of format version 1 (half of each is the worst rounding error)
+# quantisation steps of format version 2 (as of version 1) (half of each is the worst rounding error)
 STEP_POS, STEP_DOP, STEP_PX, STEP_DEPTH, STEP_SNR = 0.01, 0.01, 0.5, 0.01, 0.5
 STEP_U8 = 1 / 255
 
@@ -31,7 +33,7 @@ def make_frame(seed: int = 0, V: int = 4, K: int = 17, B: int = 50, sender: str 
                              rng.uniform(0, 1, V), rng.uniform(2, 95, V)])
     pts = np.column_stack([rng.uniform(-80, 80, K), rng.uniform(0, 100, K), rng.uniform(-3, 3, K),
                            rng.uniform(-40, 40, K), rng.uniform(0, 60, K)])
-    return SharedFrame(sender=sender, seq=int(rng.integers(0, 2**32)), stamp=1.7e9 + rng.uniform(0, 1e4),
+    return SharedFrame(sender=sender, seq=int(rng.integers(0, 2**63)), stamp=1.7e9 + rng.uniform(0, 1e4),
                        radar_height=0.73, ego_velocity=rng.uniform(-20, 20, 2),
                        vehicle_points=pts.astype(np.float32), vehicle_index=index,
                        vehicle_boxes=boxes.astype(np.float32),
@@ -67,7 +69,7 @@ def assert_round_trip(a: SharedFrame, b: SharedFrame) -> None:
 def test_round_trip_exact_to_the_quantisation_step(seed):
     a = make_frame(seed)
     data = encode(a)
-    assert len(data) == (4 + 1 + 1 + 4 + 1 + len(a.sender) + 4 + 8 + 4 + 2 * 2 + 3 * 2 + 4
+    assert len(data) == (4 + 1 + 1 + 4 + 8 + 1 + len(a.sender) + 8 + 8 + 4 + 2 * 2 + 3 * 2 + 64
                          + 4 * VEHICLE_DTYPE.itemsize + 17 * POINT_DTYPE.itemsize
                          + 50 * BACKGROUND_DTYPE.itemsize)
     assert_round_trip(a, decode(data))
@@ -102,14 +104,14 @@ def test_quantisation_extremes_round_trip():
     a = make_frame(5, V=1, K=2, B=1)
     a.vehicle_points[0, :4] = [327.67, -327.68, 0.004, -327.68]
     a.vehicle_points[1, 4] = 500.0              # SNR clipped to 127.5 dB
-    a.seq = 2**32 - 1
+    a.seq = 2**64 - 1
     b = decode(encode(a))
     assert_round_trip(a, b)
-    assert b.vehicle_points[1, 4] == 127.5 and b.seq == 2**32 - 1
+    assert b.vehicle_points[1, 4] == 127.5 and b.seq == 2**64 - 1
 
 
 @pytest.mark.parametrize("field, value", [
-    ("sender", "x" * 65), ("seq", -1), ("seq", 2**32), ("stamp", float("nan")),
+    ("sender", "x" * 65), ("seq", -1), ("seq", 2**64), ("stamp", float("nan")),
     ("ego_velocity", np.array([1.0, np.nan])), ("ego_velocity", np.array([400.0, 0.0])),
     ("background", np.array([[400.0, 0.0, 0.0]], np.float32)),
 ])
@@ -134,15 +136,37 @@ def small_frame_bytes() -> bytes:
     return encode(make_frame(7, V=2, K=3, B=2, sender="c"))
 
 
-def test_every_single_byte_corruption_is_rejected():
+class HashSigner:
+    """A stand-in signer (SHA-512 of the message) to see what a signature covers."""
+
+    key_id = b"\x01" * 8
+
+    def sign(self, message: bytes) -> bytes:
+        return hashlib.sha512(message).digest()
+
+
+def test_the_signature_covers_every_byte_before_it():
+    data = encode(make_frame(7, V=2, K=3, B=2, sender="c"), HashSigner())
+    signed, sig = split_signature(data)
+    assert len(sig) == SIGNATURE_BYTES and signed + sig == data
+    assert sig == hashlib.sha512(data[:-SIGNATURE_BYTES]).digest()
+    assert header(data).key_id == HashSigner.key_id
+    unsigned = encode(make_frame(7, V=2, K=3, B=2, sender="c"))
+    assert header(unsigned).key_id == bytes(8) and unsigned[-64:] == bytes(64)
+    assert unsigned[18:-64] == data[18:-64]                   # the same frame either way
+
+
+def test_every_single_byte_corruption_is_a_decode_error_or_a_frame():
     data = small_frame_bytes()
     assert len(data) > 100
     for pos in range(len(data)):
         for flip in (0x01, 0x80, 0xFF):
             bad = bytearray(data)
             bad[pos] ^= flip
-            with pytest.raises(DecodeError):
-                decode(bytes(bad))
+            try:
+                assert isinstance(decode(bytes(bad)), SharedFrame)
+            except DecodeError:
+                pass
 
 
 def test_every_truncation_and_extension_is_rejected():
@@ -155,47 +179,86 @@ def test_every_truncation_and_extension_is_rejected():
             decode(data + extra)
 
 
-def _recrc(body: bytes) -> bytes:
-    """Re-seal a tampered frame with a correct CRC (to reach the checks after it)."""
-    body = body[:6] + struct.pack("<I", len(body) + 4) + body[10:]
-    return body + struct.pack("<I", zlib.crc32(body))
+def _reseal(body: bytes) -> bytes:
+    """Give a tampered frame (without its signature) a matching length and a zero signature."""
+    body = body[:6] + struct.pack("<I", len(body) + 64) + body[10:]
+    return body + bytes(64)
 
 
-def test_counts_are_checked_against_the_bytes_even_with_a_valid_crc():
+def test_counts_are_checked_against_the_bytes():
     data = small_frame_bytes()
-    body = data[:-4]
-    meta = 4 + 1 + 1 + 4 + 1 + 1            # header + sender length + "c"
-    counts_at = meta + 4 + 8 + 4 + 4         # seq, stamp, height, velocity
+    body = data[:-64]
+    meta = 4 + 1 + 1 + 4 + 8 + 1 + 1         # header + key id + sender length + "c"
+    counts_at = meta + 8 + 8 + 4 + 4         # seq, stamp, height, velocity
     for k in range(3):                       # V, K, B each off by one
         bad = bytearray(body)
         bad[counts_at + 2 * k] += 1
         with pytest.raises(DecodeError, match="counts"):
-            decode(_recrc(bytes(bad)))
+            decode(_reseal(bytes(bad)))
     # one vehicle claims one point more: the byte sizes agree, the per-vehicle sum does not
     veh_at = counts_at + 6
     n_points_at = veh_at + 8 + 1 + 2 + 2
     bad = bytearray(body)
     bad[n_points_at] += 1
     with pytest.raises(DecodeError, match="claim"):
-        decode(_recrc(bytes(bad)))
+        decode(_reseal(bytes(bad)))
     bad = bytearray(body)                    # sender length beyond the limit
-    bad[10] = 200
+    bad[18] = 200
     with pytest.raises(DecodeError):
-        decode(_recrc(bytes(bad)))
+        decode(_reseal(bytes(bad)))
     bad = bytearray(body)                    # invalid UTF-8 sender
-    bad[11] = 0xFF
+    bad[19] = 0xFF
     with pytest.raises(DecodeError, match="UTF-8"):
-        decode(_recrc(bytes(bad)))
+        decode(_reseal(bytes(bad)))
     bad = bytearray(body)                    # NaN stamp
     bad[counts_at - 16:counts_at - 8] = struct.pack("<d", float("nan"))
     with pytest.raises(DecodeError, match="finite"):
-        decode(_recrc(bytes(bad)))
-    assert decode(_recrc(body)).sender == "c"      # the re-sealing itself is sound
+        decode(_reseal(bytes(bad)))
+    assert decode(_reseal(body)).sender == "c"      # the re-sealing itself is sound
+
+
+def test_a_5000_vehicle_frame_is_refused_at_decode_before_its_records_are_read():
+    rng = np.random.default_rng(0)
+    V = 5000
+    big = SharedFrame(sender="cav1", seq=1, stamp=1.0, radar_height=1.0,
+                      vehicle_boxes=np.tile(np.array([[1, 1, 9, 9, 0.5, 20]], np.float32), (V, 1)),
+                      vehicle_box_index=np.arange(V) % 65535,
+                      vehicle_centers=rng.uniform(-50, 50, (V, 2)).astype(np.float32),
+                      vehicle_features=np.zeros((V, 32), np.float32))
+    data = encode(big)                     # the format can carry it ...
+    with pytest.raises(OverCaps, match="too large"):
+        decode(data)                       # ... a decoder refuses it on its size
+    with pytest.raises(OverCaps, match="over the caps: 5000 vehicles"):
+        header(data, Limits(max_vehicles=64, max_points=2048, max_background=100_000))
+    assert isinstance(OverCaps("x"), DecodeError)
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"V": 5}, "5 vehicles"), ({"K": 11}, "11 points"), ({"B": 11}, "11 background"),
+])
+def test_counts_over_the_caps_are_refused(kw, message):
+    limits = Limits(max_vehicles=4, max_points=10, max_background=10)
+    a = make_frame(2, V=kw.get("V", 2), K=kw.get("K", 3), B=kw.get("B", 3))
+    with pytest.raises(OverCaps, match=message):
+        decode(encode(a), limits)
+
+
+@pytest.mark.parametrize("field", ["vehicle_points", "vehicle_centers", "background", "depth"])
+def test_positions_beyond_the_radar_range_are_refused(field):
+    a = make_frame(3, V=2, K=3, B=3)
+    if field == "depth":
+        a.vehicle_boxes[0, 5] = 160.0
+    else:
+        getattr(a, field)[0, 1] = -160.0
+    data = encode(a)
+    with pytest.raises(OverCaps, match="range"):
+        decode(data, Limits(max_range_m=150.0))
+    assert decode(data).sender == a.sender              # within the format's own range
 
 
 @pytest.mark.parametrize("mutate, message", [
     (lambda d: b"XXXX" + d[4:], "magic"),
-    (lambda d: d[:4] + b"\x02" + d[5:], "version"),
+    (lambda d: d[:4] + b"\x01" + d[5:], "version"),      # version 1 (unsigned) is refused
     (lambda d: d[:5] + b"\x01" + d[6:], "flags"),
 ])
 def test_header_errors_are_named(mutate, message):
@@ -219,9 +282,9 @@ def test_fuzz_random_bytes_only_raise_decode_error(data):
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=300))
 def test_fuzz_bytes_behind_a_valid_header_only_raise_decode_error(tail):
-    body = MAGIC + b"\x01\x00" + struct.pack("<I", 10 + len(tail) + 4) + tail
+    body = MAGIC + b"\x02\x00" + struct.pack("<I", 18 + len(tail) + 64) + bytes(8) + tail
     try:
-        frame = decode(body + struct.pack("<I", zlib.crc32(body)))
+        frame = decode(body + bytes(64))
     except DecodeError:
         return
     assert isinstance(frame, SharedFrame)   # a well-formed accident is fine; never another error

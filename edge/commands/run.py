@@ -58,6 +58,7 @@ def run_service(cfg, *, duration: float | None = None, process: bool = True) -> 
     import threading
 
     from mmatch.edge import config as config_mod
+    from mmatch.edge.auth import identity as make_identity
     from mmatch.edge.health import Notifier
     from mmatch.edge.loop import VehicleLoop
     from mmatch.edge.pipeline import default_pipeline
@@ -66,6 +67,7 @@ def run_service(cfg, *, duration: float | None = None, process: bool = True) -> 
     from mmatch.edge.transport import Transport
 
     pipeline = default_pipeline(need_fuse=cfg.is_ego, track_max_age_s=cfg.ego.track_max_age_s) if process else None
+    ident = make_identity(cfg) if process else None
     notifier = Notifier()
     with contextlib.ExitStack() as stack:
         recorder = None
@@ -79,13 +81,18 @@ def run_service(cfg, *, duration: float | None = None, process: bool = True) -> 
         stack.callback(camera.close)
         stack.callback(notifier.close)
         loop = VehicleLoop(cfg, radar, camera, pipeline, transport=transport, recorder=recorder,
-                           notifier=notifier, process=process)
+                           notifier=notifier, process=process, identity=ident)
 
         def on_signal(signum: int, _frame: object) -> None:
             log.info("signal %d: stopping", signum)
             loop.stop.set()
 
+        def on_hangup(signum: int, _frame: object) -> None:
+            if ident is not None and ident.trust is not None:
+                ident.trust.request_reload()
+
         old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+        old[signal.SIGHUP] = signal.signal(signal.SIGHUP, on_hangup)
         stack.callback(lambda: [signal.signal(s, h) for s, h in old.items()])
         if duration is not None:
             timer = threading.Timer(duration, loop.stop.set)

@@ -1,43 +1,24 @@
-"""A stand-in pipeline with the contract's signatures, for testing the loop logic alone."""
+"""A stand-in pipeline with the contract's signatures, for testing the loop logic alone
+(fake CAV processing and fusion, the real wire codec)."""
 
 from __future__ import annotations
 
-import io
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from mmatch.codec import decode, encode
 from mmatch.edge.pipeline import Pipeline
-from mmatch.errors import DecodeError
 from mmatch.shared import SharedFrame
-
-MAGIC = b"FAKE"
 
 
 def process_view(points, boxes, features, camera, radar_height, stamp, *, sender="cav", seq=0, config=None):
     centers = np.asarray(points, np.float32)[:, :2][:3]
     return SharedFrame(sender=sender, seq=seq, stamp=stamp, radar_height=radar_height,
                        vehicle_centers=centers.copy(),
-                       vehicle_boxes=np.zeros((len(centers), 6), np.float32)), {"egomotion": 0.1}
-
-
-def encode(frame: SharedFrame) -> bytes:
-    buf = io.BytesIO()
-    np.savez(buf, sender=frame.sender, seq=frame.seq, stamp=frame.stamp, h=frame.radar_height,
-             centers=frame.vehicle_centers)
-    return MAGIC + buf.getvalue()
-
-
-def decode(data: bytes) -> SharedFrame:
-    if not data.startswith(MAGIC):
-        raise DecodeError("bad magic")
-    try:
-        z = np.load(io.BytesIO(data[4:]))
-        return SharedFrame(sender=str(z["sender"]), seq=int(z["seq"]), stamp=float(z["stamp"]),
-                           radar_height=float(z["h"]), vehicle_centers=z["centers"],
-                           vehicle_boxes=np.zeros((len(z["centers"]), 6), np.float32))
-    except Exception as exc:
-        raise DecodeError(str(exc)) from exc
+                       vehicle_boxes=np.zeros((len(centers), 6), np.float32),
+                       vehicle_box_index=np.arange(len(centers), dtype=np.int32),
+                       vehicle_features=np.zeros((len(centers), 32), np.float32)), {"egomotion": 0.1}
 
 
 @dataclass
@@ -60,4 +41,4 @@ def fuse(own, other, config=None):
     return FakeResult("fused", "", T, np.array([[0, 0]], np.int32), np.r_[own_obj, oth].astype(np.float32))
 
 
-FAKE = Pipeline(process_view=process_view, encode=encode, decode=decode, fuse=fuse)
+FAKE = Pipeline(process_view=process_view, encode=encode, decode=decode, fuse=fuse)  # the real codec

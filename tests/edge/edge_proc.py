@@ -14,7 +14,10 @@ REPO = Path(__file__).resolve().parents[2]
 
 def write_vehicle_cfg(path: Path, *, vid: str, role: str, listen: list[str], connect: list[str],
                       log_dir: Path | None, phase: float = 0.0, cavs: list[str] | None = None,
-                      seed: int = 1, mode: str = "easy", extra: str = "") -> Path:
+                      seed: int = 1, mode: str = "easy", extra: str = "",
+                      dev_dir: Path | None = None) -> Path:
+    """A simulated vehicle's config; its dev keys live in `dev_dir` (default: beside the file,
+    shared by every vehicle of the test)."""
     def arr(xs: list[str]) -> str:
         return "[" + ", ".join(f'"{x}"' for x in xs) + "]"
 
@@ -39,6 +42,9 @@ connect = {arr(connect)}
 cavs = {arr(cavs or [])}
 [loop]
 status_interval_s = 1.0
+[auth]
+keys = "dev"
+dev_dir = "{dev_dir or path.parent / 'dev-keys'}"
 [log]
 dir = "{log_dir or ''}"
 chunk_kb = 64
@@ -49,6 +55,17 @@ floor_mb = 0
 """
     path.write_text(text)
     return path
+
+
+def dev_verifier(folder: Path):
+    """A Verifier trusting the dev keys of the vehicles a test started from `folder` (the
+    trust file is re-read as vehicles add their keys)."""
+    from mmatch.edge.auth import TrustStore, Verifier
+
+    deadline = time.monotonic() + 30
+    while not (folder / "trust.toml").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return Verifier(TrustStore(folder / "trust.toml"), ahead_s=0.05, behind_s=1.0)
 
 
 def _service_priority() -> None:

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 import pytest
-from edge_proc import mmatch, start, stop, wait_for, write_vehicle_cfg
+from edge_proc import dev_verifier, mmatch, start, stop, wait_for, write_vehicle_cfg
 
 from mmatch.edge import keys
 from mmatch.edge.config import ZenohSection
@@ -33,16 +33,25 @@ class Watcher:
     """A Zenoh peer recording (arrival time, message) of the Ego's fused results and the
     arrival times of the CAV's shared frames."""
 
-    def __init__(self) -> None:
+    def __init__(self, dev_dir) -> None:
+        self.dev_dir = dev_dir
+        self.verifier = None
         self.fused: list[tuple[float, dict]] = []
         self.shared: list[float] = []
         self.health: list[dict] = []
         self.lock = threading.Lock()
 
+    def open(self, vehicle: str, kind: str, payload: bytes) -> dict:
+        """Signed by the vehicle's dev key, or refused (Rejected)."""
+        if self.verifier is None:
+            self.verifier = dev_verifier(self.dev_dir)
+        return self.verifier.open_message(vehicle, kind, payload)
+
     def on_fused(self, vehicle: str, payload: bytes) -> None:
         t = time.time()
+        msg = self.open(vehicle, "fused", payload)
         with self.lock:
-            self.fused.append((t, json.loads(payload)))
+            self.fused.append((t, msg))
 
     def on_shared(self, vehicle: str, payload: bytes) -> None:
         t = time.time()
@@ -50,8 +59,9 @@ class Watcher:
             self.shared.append(t)
 
     def on_health(self, vehicle: str, payload: bytes) -> None:
+        msg = self.open(vehicle, "health", payload)
         with self.lock:
-            self.health.append(json.loads(payload))
+            self.health.append(msg)
 
     def fused_since(self, t0: float) -> list[tuple[float, dict]]:
         with self.lock:
@@ -67,7 +77,7 @@ def live(tmp_path_factory):
                                 log_dir=tmp / "log-ego", phase=0.02, cavs=["cav1"])
     cav_cfgs = [write_vehicle_cfg(tmp / f"cav{k}.toml", vid="cav1", role="cav", listen=[],
                                   connect=[ego_ep, obs_ep], log_dir=tmp / f"log-cav-{k}") for k in (1, 2)]
-    w = Watcher()
+    w = Watcher(tmp / "dev-keys")
     out: dict = {"tmp": tmp, "watcher": w}
     procs = []
     with Transport(ZenohSection(listen=[obs_ep], connect=[ego_ep])) as obs:

@@ -25,8 +25,24 @@ def _frame(seq, stamp):
 
 
 def _cav_bytes(sender, seq, stamp):
-    sf, _ = process_view(np.full((2, 5), 100 + seq, np.float32), None, None, None, 1.0, stamp, sender=sender, seq=seq)
+    sf, _ = process_view(np.full((2, 5), 10 + seq, np.float32), None, None, None, 1.0, stamp, sender=sender, seq=seq)
     return encode(sf)
+
+
+def _big_frame(sender, vehicles=0, points=0, background=0, stamp=1.0, signer=None):
+    from mmatch.shared import SharedFrame
+
+    rng = np.random.default_rng(0)
+    V = vehicles
+    return encode(SharedFrame(
+        sender=sender, seq=1, stamp=stamp, radar_height=1.0,
+        vehicle_boxes=np.tile(np.array([[10, 10, 20, 20, 0.9, 10]], np.float32), (V, 1)),
+        vehicle_box_index=np.arange(V, dtype=np.int32),
+        vehicle_centers=rng.uniform(-50, 50, (V, 2)).astype(np.float32),
+        vehicle_features=np.zeros((V, 32), np.float32),
+        vehicle_points=rng.uniform(-50, 50, (points, 5)).astype(np.float32),
+        vehicle_index=np.zeros(points, np.int32),
+        background=rng.uniform(-50, 50, (background, 3)).astype(np.float32)), signer)
 
 
 def _node(cfg, published=None):
@@ -91,12 +107,12 @@ def test_bad_and_foreign_frames_are_dropped_and_counted():
         node.on_shared("cav1", b"garbage")
     with pytest.raises(DecodeError):
         node.on_shared("cav1", _cav_bytes("cav9", 1, 1.0))  # sender does not match its key
-    with pytest.raises(DecodeError, match="future"):
-        node.on_shared("cav1", _cav_bytes("cav1", 1, 1e12))  # its clock is not synchronised
+    with pytest.raises(DecodeError, match="too large|over the caps"):
+        node.on_shared("cav1", _big_frame("cav1", vehicles=5000))  # refused at decode
     node.on_shared("cav2", _cav_bytes("cav2", 1, 1.0))      # not one of ego.cavs
     node.on_shared("ego1", _cav_bytes("ego1", 1, 1.0))      # our own echo
     assert node.counters.rx == 0
-    assert node.counters.rx_rejected == {"malformed": 1, "sender_mismatch": 1, "foreign": 1, "future_stamp": 1}
+    assert node.counters.rx_rejected == {"malformed": 1, "caps": 1, "sender_mismatch": 1, "foreign": 1}
     assert node.process(_frame(1, 1.0))["status"] == "single"
 
 
@@ -106,7 +122,7 @@ def test_cav_role_publishes_shared_frames():
                 publish=lambda k, d: published.append((k, d)))
     assert node.process(_frame(3, 2.0)) is None
     assert published[0][0] == keys.shared("ego1")
-    assert FAKE.decode(published[0][1]).seq == 3
+    assert FAKE.decode(published[0][1]).seq == 3   # unsigned (no signer): the frame counter
 
 
 def test_loop_survives_a_pipeline_failure_on_one_frame():

@@ -96,6 +96,9 @@ baudrate = {BAUD}
 reconnect_s = 0.1
 [camera]
 source = "none"
+[auth]
+keys = "dev"
+dev_dir = "{path.parent / 'dev-keys'}"
 [log]
 dir = "{log_dir or ''}"
 flush_s = 0.2
