@@ -15,9 +15,9 @@ REPO = Path(__file__).resolve().parents[2]
 def write_vehicle_cfg(path: Path, *, vid: str, role: str, listen: list[str], connect: list[str],
                       log_dir: Path | None, phase: float = 0.0, cavs: list[str] | None = None,
                       seed: int = 1, mode: str = "easy", extra: str = "",
-                      dev_dir: Path | None = None) -> Path:
+                      dev_dir: Path | None = None, ego: str = "") -> Path:
     """A simulated vehicle's config; its dev keys live in `dev_dir` (default: beside the file,
-    shared by every vehicle of the test)."""
+    shared by every vehicle of the test); `ego`: more lines of the [ego] table."""
     def arr(xs: list[str]) -> str:
         return "[" + ", ".join(f'"{x}"' for x in xs) + "]"
 
@@ -40,6 +40,7 @@ listen = {arr(listen)}
 connect = {arr(connect)}
 [ego]
 cavs = {arr(cavs or [])}
+{ego}
 [loop]
 status_interval_s = 1.0
 [auth]

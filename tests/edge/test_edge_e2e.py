@@ -186,8 +186,10 @@ def test_ego_fuses_several_cavs_at_once(tmp_path):
     from mmatch.edge import logreader
 
     ego_ep = f"tcp/127.0.0.1:{free_port()}"
+    # a function check: no frame budget (on a starved machine it would leave the second CAV out)
     ego_cfg = write_vehicle_cfg(tmp_path / "ego.toml", vid="ego1", role="ego", listen=[ego_ep], connect=[],
-                                log_dir=tmp_path / "log-ego", phase=0.02, cavs=[])
+                                log_dir=tmp_path / "log-ego", phase=0.02, cavs=[],
+                                ego="frame_budget_s = 10.0")
     cavs = [write_vehicle_cfg(tmp_path / f"{c}.toml", vid=c, role="cav", listen=[], connect=[ego_ep],
                               log_dir=None, phase=ph)
             for c, ph in (("cav1", 0.0), ("cav2", 0.01))]
