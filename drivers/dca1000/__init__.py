@@ -10,7 +10,8 @@ Modules
     rawfile    mmWave Studio / DCA1000 CLI *_Raw_*.bin reader (whole frames or a clear error)
     antenna    antenna layouts (positions in lambda/2, radar frame)
     dsp        range/Doppler FFT, clutter removal, CA/OS 2D CFAR, TDM-MIMO compensation, angles
-    synth      FMCW raw-ADC synthesiser of point targets
+    synth      FMCW raw-ADC synthesiser of point targets and vehicles (scatterers per cell)
+    angle_study  DSP angle errors per SNR band vs the simulator's model (mmatch dsp --angle-study)
     fake       fake DCA1000 on 127.0.0.1 (control + paced stream with seeded loss/reordering)
     bench      `mmatch bench` suite "dsp"
 

@@ -135,7 +135,7 @@ def synth_cube(
         vs, group = np.unique(vel, return_inverse=True)
         for g, v in enumerate(vs):
             sel = group == g
-            summed = (space[sel].reshape(-1, T * R).T @ fast[sel]).reshape(T, R, N)
+            summed = np.einsum("ktr,kn->trn", space[sel], fast[sel])  # (BLAS matmul: slower)
             slow = _cis(v * t_c.reshape(L, T)[..., None] * freq_n)  # (L, T, N)
             cube += slow[:, :, None, :] * summed[None]
     cube = cube.reshape(L * T, R, N)
