@@ -100,6 +100,19 @@ def log_events(path: str | Path, report: logreader.LogReport | None = None,
             log.warning("skipping a bad %s record: %s", m.topic, exc)
 
 
+def recorded_budget_skips(path: str | Path) -> dict[tuple[int, int], list[str]]:
+    """{(seq, stamp ns): CAV ids} the live run left out of a frame for its time budget."""
+    out: dict[tuple[int, int], list[str]] = {}
+    for m in logreader.read_messages(path, topics=[logschema.FUSED]):
+        try:
+            msg = json.loads(m.data)
+            if msg.get("budget_skipped"):
+                out[(int(msg["seq"]), logschema.stamp_key(float(msg["stamp"])))] = list(msg["budget_skipped"])
+        except (ValueError, KeyError, TypeError):
+            continue
+    return out
+
+
 def log_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """The metadata records of a log's first file, by name ("config", "camera")."""
     report = logreader.LogReport()
@@ -251,8 +264,12 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
             n = Node(cfg, pipeline, camera, height, publish=transport.put if transport else None,
                      recorder=recorder, signer=signer)
             n.on_result = fused.append
+            n.replay_skips = budget_skips
             return n
 
+        budget_skips: dict[tuple[int, int], list[str]] = {}
+        if process and is_log:
+            budget_skips = recorded_budget_skips(path)
         if process:
             node = fresh_node()
         pacer = Pacer(fast, speed)

@@ -150,3 +150,68 @@ def test_loop_survives_a_pipeline_failure_on_one_frame():
     for k in range(3):
         loop._step(RadarFrame(points=np.ones((3, 5), np.float32), stamp=float(k)))
     assert len(calls) == 3 and loop.drops["pipeline_error"] == 1 and loop.node.counters.frames == 3
+
+
+def test_frame_budget_leaves_out_further_cavs_and_a_replay_leaves_out_the_same():
+    import time as _time
+    from dataclasses import replace
+
+    def slow_fuse(own, other, config=None):
+        if other is not None:
+            _time.sleep(0.1)
+        return FAKE.fuse(own, other)
+
+    cfg = _cfg(cavs=("cav1", "cav2", "cav3"))
+    live = Node(cfg, replace(FAKE, fuse=slow_fuse), default_camera(), 0.7, budget_s=0.15)
+    again = Node(cfg, FAKE, default_camera(), 0.7)           # a replay: no budget of its own
+    for node in (live, again):
+        for c in ("cav1", "cav2", "cav3"):
+            node.on_shared(c, _cav_bytes(c, 1, 10.0))
+    msg = live.process(_frame(1, 10.01))
+    assert [c["id"] for c in msg["cavs"]] == ["cav1", "cav2"] and msg["budget_skipped"] == ["cav3"]
+    assert live.counters.budget_skipped == 1 and live.summary()["budget_skipped"] == 1
+    again.replay_skips = {(1, 10_010_000_000): ["cav3"]}
+    rep = again.process(_frame(1, 10.01))
+    assert [c["id"] for c in rep["cavs"]] == ["cav1", "cav2"] and rep["budget_skipped"] == ["cav3"]
+
+
+def test_every_cav_mode_caps_links_and_forgets_silent_ones():
+    node = _node(_cfg(cavs=(), max_links=2, link_expire_s=5.0))
+    node.on_shared("cav1", _cav_bytes("cav1", 1, 100.0))
+    node.on_shared("cav2", _cav_bytes("cav2", 1, 100.0))
+    with pytest.raises(DecodeError, match="link_cap"):
+        node.on_shared("cav3", _cav_bytes("cav3", 1, 100.0))
+    assert node.counters.rx_rejected["link_cap"] == 1
+    assert set(node.process(_frame(1, 100.01))["links"]) == {"cav1", "cav2"}
+    for k in range(2, 8):                                    # cav2 goes silent, cav1 keeps talking
+        node.on_shared("cav1", _cav_bytes("cav1", k, 100.0 + k))
+        node.process(_frame(k, 100.01 + k))
+    assert set(node.links) == {"cav1"} and node.counters.links_expired == 1
+    node.on_shared("cav3", _cav_bytes("cav3", 1, 108.0))     # its link was freed
+    assert set(node.process(_frame(9, 108.01))["links"]) == {"cav1", "cav3"}
+
+
+def test_fused_message_carries_confidence_covariance_and_ambiguity_as_json():
+    import json as _json
+    from dataclasses import replace
+
+    def fuse(own, other, config=None):
+        r = FAKE.fuse(own, other)
+        r.confidence, r.ambiguity = 0.8, float("nan")
+        r.covariance = np.diag([0.04, 0.09, np.nan])
+        return r
+
+    published = []
+    node = Node(_cfg(), replace(FAKE, fuse=fuse), default_camera(), 0.7,
+                publish=lambda k, d: published.append(d))
+    node.on_shared("cav1", _cav_bytes("cav1", 1, 10.0))
+    node.process(_frame(1, 10.01))
+    (c,) = _json.loads(published[0])["cavs"]                 # strict JSON: no NaN tokens
+    assert c["confidence"] == 0.8 and c["ambiguity"] is None
+    assert c["covariance"][0][0] == 0.04 and c["covariance"][2][2] is None
+    assert node.summary()["links"]["cav1"]["confidence"] == 0.8
+    node2 = Node(_cfg(), FAKE, default_camera(), 0.7, publish=lambda k, d: published.append(d))
+    node2.on_shared("cav1", _cav_bytes("cav1", 1, 10.0))
+    node2.process(_frame(1, 10.01))                          # a result without those fields
+    (c,) = _json.loads(published[1])["cavs"]
+    assert c["confidence"] is None and c["covariance"] is None
