@@ -9,6 +9,7 @@ when, in this order (the cheap checks first, so a flood cannot make it verify):
 2. the sender inside equals the vehicle of its key expression      -> else "sender_mismatch"
 3. the sender is in the trust file, with the key id of the frame   -> else "unknown_sender" / "unknown_key"
 4. its stamp lies in [now - behind_s, now + ahead_s]               -> else "stale" / "future"
+   (the lower end moves back while the receiver's own frames lag: `pairing_horizon`)
 5. its sequence number is above the last accepted from that sender -> else "replay"
 6. the Ed25519 signature verifies                                  -> else "bad_signature"
 7. the records decode within the caps (positions within range)     -> else "malformed" / "caps"
@@ -365,6 +366,9 @@ class Verifier:
         self.message_behind_s = message_behind_s
         self.limits = limits
         self.clock = clock
+        #: the oldest stamp a frame could still pair with (s); an Ego whose own frames lag
+        #: behind the clock (an overloaded machine) sets it, so frames it can use are not stale
+        self.pairing_horizon = float("inf")
         self._lock = threading.Lock()
         self._last_seq: dict[tuple[str, str], int] = {}
         self.counts: collections.Counter = collections.Counter()
@@ -375,7 +379,7 @@ class Verifier:
         return Rejected(reason, detail)
 
     def _check(self, stream: tuple[str, str], kid: bytes, seq: int, stamp: float,
-               behind_s: float) -> Any:
+               behind_s: float, horizon: float = float("inf")) -> Any:
         try:
             key = self.trust.lookup(stream[0], kid)
         except Rejected as exc:
@@ -383,7 +387,7 @@ class Verifier:
         now = self.clock()
         if stamp > now + self.ahead_s:
             raise self._refuse("future", f"stamp {stamp - now:+.3f} s from our clock")
-        if stamp < now - behind_s:
+        if stamp < min(now - behind_s, horizon):
             raise self._refuse("stale", f"stamp {stamp - now:+.3f} s from our clock")
         with self._lock:
             last = self._last_seq.get(stream, -1)
@@ -416,7 +420,7 @@ class Verifier:
         if h.sender != vehicle:
             raise self._refuse("sender_mismatch", f"frame from {h.sender!r} published under {vehicle!r}")
         stream = (vehicle, "shared")
-        key = self._check(stream, h.key_id, h.seq, h.stamp, self.behind_s)
+        key = self._check(stream, h.key_id, h.seq, h.stamp, self.behind_s, self.pairing_horizon)
         signed, signature = codec.split_signature(bytes(data))
         try:
             key.verify(signature, signed)

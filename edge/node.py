@@ -267,6 +267,8 @@ class Node:
     def _pair(self, frame: SensorFrame) -> dict[str, Any]:
         """The CAV frame closest in capture time to `frame`, per CAV (logged at decision)."""
         tol = self.cfg.ego.pair_tolerance_s
+        if self.verifier is not None:  # a lagging loop still takes the frames it can pair with
+            self.verifier.pairing_horizon = frame.stamp - tol
         with self._cond:
             if self.wait_s > 0:
                 # deadline on the shared clock: own capture + wait_s keeps the latency budget

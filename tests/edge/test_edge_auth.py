@@ -306,3 +306,15 @@ def test_mmatch_keys_makes_a_fleet_rotates_and_retires(tmp_path):
         v.open_frame("cav1", codec.encode(_frame(seq=3), old))
     assert v.open_frame("cav1", codec.encode(_frame(seq=4), new)).seq == 4
     assert main(["keys", "--out", str(fleet), "bad/id"]) == 2                 # a clear error
+
+
+def test_a_lagging_ego_still_takes_frames_it_can_pair_with(fleet):
+    path, s = fleet
+    v = _verifier(path)
+    late = codec.encode(_frame(seq=1, stamp=NOW - 0.4), s["cav1"])
+    with pytest.raises(Rejected, match="stale"):
+        v.open_frame("cav1", late)
+    v.pairing_horizon = NOW - 0.45      # the Ego is pairing an own frame captured 0.39 s ago
+    assert v.open_frame("cav1", late).seq == 1
+    with pytest.raises(Rejected, match="stale"):
+        v.open_frame("cav1", codec.encode(_frame(seq=2, stamp=NOW - 0.5), s["cav1"]))
