@@ -7,11 +7,11 @@ export DEPTHAI_TELEMETRY := 0
 export DEPTHAI_PROTOCOL := usb
 export DEPTHAI_DISABLE_STARTUP_NOTIFICATIONS := 1
 
-.PHONY: demo test bench eval-easy eval-hard venv clean
+.PHONY: demo test bench docs eval-easy eval-hard venv clean
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt pyproject.toml
+$(STAMP): requirements.txt pyproject.toml setup.py
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -r requirements.txt
@@ -26,6 +26,9 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/mmatch bench --out bench-results
+
+docs: $(STAMP)
+	$(BIN)/mmatch config --docs docs
 
 eval-easy: $(STAMP)
 	$(BIN)/mmatch sim --out data/easy --n 200 --seed 0 --mode easy --jobs 2

@@ -2,12 +2,16 @@
 
 The repository keeps `mmatch/`, `drivers/` and `edge/` side by side (DESIGN.md); the wheel
 installs the last two as `mmatch.drivers` and `mmatch.edge`, so nothing generic lands at
-the top of site-packages.
+the top of site-packages. The data folders `cfg/` (vehicle and Zenoh configs, radar chirp
+profiles, an example camera calibration) and `systemd/` (the unit file) ship as package
+data under `mmatch.cfg` and `mmatch.systemd` (read with `mmatch.edge.resources`).
 """
 
 from setuptools import find_packages, setup
 
 MAPPED = ("edge", "drivers")
+DATA = {"cfg": ["*.toml", "radar/*.cfg", "zenoh/*.json5", "camera/*.toml"],
+        "systemd": ["*.service", "*.md"]}
 
 packages = find_packages(include=["mmatch", "mmatch.*"])
 package_dir = {}
@@ -15,5 +19,10 @@ for top in MAPPED:
     for pkg in find_packages(include=[top, f"{top}.*"]):
         packages.append(f"mmatch.{pkg}")
     package_dir[f"mmatch.{top}"] = top
+package_data = {}
+for top, patterns in DATA.items():
+    packages.append(f"mmatch.{top}")
+    package_dir[f"mmatch.{top}"] = top
+    package_data[f"mmatch.{top}"] = patterns
 
-setup(packages=packages, package_dir=package_dir)
+setup(packages=packages, package_dir=package_dir, package_data=package_data)

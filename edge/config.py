@@ -47,37 +47,39 @@ class VehicleSection:
 class RadarSection:
     """The radar source (named backend) and its settings."""
 
-    source: str = _opt("sim", choices=RADAR_SOURCES)
+    source: str = _opt("sim", choices=RADAR_SOURCES, doc="radar backend; its frames drive the loop")
     port: str = _opt("", doc="uart: data port (device path or pyserial URL)")
-    baudrate: int = _opt(921600, lo=1200, hi=12_000_000)
+    baudrate: int = _opt(921600, lo=1200, hi=12_000_000, doc="uart: data port baud rate")
     cli_port: str = _opt("", doc="uart: CLI port for sending `cfg` at start; empty = do not configure")
     cfg: str = _opt("", doc="radar chirp profile (.cfg); required for dca1000")
     dca_host: str = _opt("192.168.33.30", doc="dca1000: this computer's address on the DCA1000 link")
     dca_fpga_host: str = _opt("192.168.33.180", doc="dca1000: the FPGA's address")
-    dca_data_port: int = _opt(4098, lo=1, hi=65535)
+    dca_data_port: int = _opt(4098, lo=1, hi=65535, doc="dca1000: local UDP port of the raw ADC data")
     dca_config_port: int = _opt(4096, lo=1, hi=65535, doc="dca1000: the FPGA's command port")
     dca_local_config_port: int = _opt(4096, lo=0, hi=65535, doc="dca1000: local command port (0 = any)")
-    dca_layout: str = _opt("4lane", choices=("4lane", "2lane"))
+    dca_layout: str = _opt("4lane", choices=("4lane", "2lane"),
+                            doc="dca1000: LVDS lanes (4lane: AR1243/AWR2243, 2lane: xWR16xx/18xx/68xx)")
     path: str = _opt("", doc="replay: MCAP log or raw UART capture")
     pace: str = _opt("recorded", choices=("recorded", "fast"),
                      doc="replay: at the recorded pace (log times; baud rate for raw captures) or as fast as possible")
     speed: float = _opt(1.0, lo=0.0, lo_open=True, hi=1000.0, doc="replay: pace multiplier")
     height_m: float = _opt(1.0, lo=0.0, hi=10.0, doc="radar mounting height above the road, m")
     reconnect_s: float = _opt(1.0, lo=0.0, lo_open=True, hi=60.0, doc="wait between reopen attempts")
-    read_timeout_s: float = _opt(0.2, lo=0.0, lo_open=True, hi=10.0)
+    read_timeout_s: float = _opt(0.2, lo=0.0, lo_open=True, hi=10.0,
+                                  doc="longest wait for one read from the radar, s")
 
 
 @dataclass(frozen=True)
 class CameraSection:
     """The camera source (named backend) and its settings."""
 
-    source: str = _opt("sim", choices=CAMERA_SOURCES)
+    source: str = _opt("sim", choices=CAMERA_SOURCES, doc="camera backend (none: radar only)")
     device: str = _opt("0", doc="opencv: device index, V4L2 path, GStreamer pipeline or video file")
     calibration: str = _opt("", doc="calibration file (K, distortion, image size, T_cam_radar)")
     model: str = _opt("", doc="detector model (ONNX, or NN archive for oak)")
     path: str = _opt("", doc="replay: MCAP log")
-    threads: int = _opt(1, lo=1, hi=64)
-    reconnect_s: float = _opt(2.0, lo=0.0, lo_open=True, hi=60.0)
+    threads: int = _opt(1, lo=1, hi=64, doc="detector inference threads")
+    reconnect_s: float = _opt(2.0, lo=0.0, lo_open=True, hi=60.0, doc="wait between reopen attempts, s")
 
 
 @dataclass(frozen=True)
@@ -88,9 +90,9 @@ class SimSection:
     the same world; each samples it at its own frame phase.
     """
 
-    seed: int = _opt(1, lo=0)
-    mode: str = _opt("mixed", choices=("easy", "hard", "mixed"))
-    rate_hz: float = _opt(20.0, lo=0.0, lo_open=True, hi=1000.0)
+    seed: int = _opt(1, lo=0, doc="scenario seed; both vehicles need the same one")
+    mode: str = _opt("mixed", choices=("easy", "hard", "mixed"), doc="scenario difficulty")
+    rate_hz: float = _opt(20.0, lo=0.0, lo_open=True, hi=1000.0, doc="radar frames per second")
     phase_s: float = _opt(0.0, lo=0.0, hi=10.0, doc="frame phase offset on the shared clock, s")
     view: str = _opt("auto", choices=("auto", "ego", "cav"),
                      doc="which simulated vehicle this process is; auto: cav for role cav, else ego")
@@ -105,12 +107,13 @@ class SimSection:
 class ZenohSection:
     """Zenoh session. Peer mode with explicit endpoints, or client mode to a router."""
 
-    mode: str = _opt("peer", choices=("peer", "client"))
-    listen: list[str] = _opt([])
-    connect: list[str] = _opt([])
-    multicast_scouting: bool = _opt(False)
-    gossip: bool = _opt(False)
-    shared_memory: bool = _opt(False)
+    mode: str = _opt("peer", choices=("peer", "client"),
+                     doc="peer: vehicles connect directly; client: through a router (`mmatch router`, zenohd)")
+    listen: list[str] = _opt([], doc="endpoints to listen on, e.g. tcp/192.168.50.11:7447 (one interface, never all)")
+    connect: list[str] = _opt([], doc="endpoints to connect to: the other vehicle (peer) or the router (client)")
+    multicast_scouting: bool = _opt(False, doc="find peers by UDP multicast (off: explicit endpoints only)")
+    gossip: bool = _opt(False, doc="learn peers from other peers")
+    shared_memory: bool = _opt(False, doc="Zenoh shared-memory transport between processes of one computer")
     config_file: str = _opt("", doc="a zenoh JSON5 file; the keys above are applied on top")
 
 
@@ -143,12 +146,15 @@ class EgoSection:
 
 @dataclass(frozen=True)
 class LoopSection:
+    """The per-vehicle loop: sensor queues and radar-camera pairing."""
+
     queue_size: int = _opt(2, lo=1, hi=1024, doc="per-sensor queue; the oldest frame is dropped")
     camera_tolerance_s: float = _opt(0.1, lo=0.0, lo_open=True, hi=5.0,
                                      doc="max |radar stamp - camera stamp| to use detections, s")
     camera_wait_s: float = _opt(0.01, lo=0.0, hi=1.0,
                                 doc="wait this long at most for detections at least as new as the radar frame")
-    status_interval_s: float = _opt(5.0, lo=0.0, lo_open=True, hi=3600.0)
+    status_interval_s: float = _opt(5.0, lo=0.0, lo_open=True, hi=3600.0,
+                                     doc="status line, health message and systemd STATUS= every this, s")
 
 
 @dataclass(frozen=True)
@@ -156,11 +162,11 @@ class LogSection:
     """Field logging to MCAP."""
 
     dir: str = _opt("", doc="log folder; empty = no logging")
-    rotate_mb: float = _opt(512.0, lo=0.0, lo_open=True)
-    rotate_s: float = _opt(600.0, lo=0.0, lo_open=True)
-    chunk_kb: float = _opt(256.0, lo=0.0, lo_open=True, hi=65536.0)
+    rotate_mb: float = _opt(512.0, lo=0.0, lo_open=True, doc="start a new file at this size, MB")
+    rotate_s: float = _opt(600.0, lo=0.0, lo_open=True, doc="start a new file at this age, s")
+    chunk_kb: float = _opt(256.0, lo=0.0, lo_open=True, hi=65536.0, doc="MCAP chunk size, KB")
     flush_s: float = _opt(1.0, lo=0.0, lo_open=True, hi=600.0, doc="close a chunk at least this often")
-    compression: str = _opt("zstd", choices=("zstd", "lz4", "none"))
+    compression: str = _opt("zstd", choices=("zstd", "lz4", "none"), doc="chunk compression")
     raw: bool = _opt(True, doc="log raw UART bytes / DCA1000 frames")
     raw_floor_mb: float = _opt(2048.0, lo=0.0, doc="below this free disk, raw data stops")
     floor_mb: float = _opt(512.0, lo=0.0, doc="below this free disk, all logging stops")
@@ -185,6 +191,8 @@ class AuthSection:
 
 @dataclass(frozen=True)
 class HealthSection:
+    """systemd integration."""
+
     watchdog: bool = _opt(True, doc="send WATCHDOG=1 when systemd asks for it")
 
 

@@ -138,16 +138,26 @@ class DropCounter:
             return dict(self.counts)
 
 
+#: the encoding each kind of sample carries (docs/formats.md); anything else is plain bytes
+ENCODINGS: dict[str, str] = {
+    "shared": "application/vnd.mmatch.shared-frame",
+    "fused": "application/json",
+    "health": "application/json",
+}
+
+
 def _publisher_qos(key: str) -> dict[str, Any]:
     """Sensor-like streams: never block the loop (drop under congestion), no batching delay
-    (express); shared frames first, fused results next, health in the background."""
+    (express); shared frames first, fused results next, health in the background. Each
+    sample says what it holds (`ENCODINGS`)."""
     import zenoh
 
     kind = (keys.parse(key) or ("", ""))[1]
     priority = {"shared": zenoh.Priority.REAL_TIME, "fused": zenoh.Priority.INTERACTIVE_HIGH,
                 "health": zenoh.Priority.BACKGROUND}.get(kind, zenoh.Priority.DATA)
+    encoding = zenoh.Encoding(ENCODINGS[kind]) if kind in ENCODINGS else zenoh.Encoding.ZENOH_BYTES
     return {"congestion_control": zenoh.CongestionControl.DROP, "express": kind != "health",
-            "priority": priority}
+            "priority": priority, "encoding": encoding}
 
 
 class Transport:

@@ -2,7 +2,7 @@
 
 onnxruntime.quantization needs the `onnx` package, which is not a runtime dependency of
 MMatch: it is imported here lazily, and a missing install fails with a clear hint
-(`pip install onnx`, or the `train` extra). The quantized model then runs through
+(`pip install onnx`, or the `quantize` extra). The quantized model then runs through
 `OnnxDetector` like any other (checked at start like any other).
 
 Two modes:
@@ -28,7 +28,7 @@ from mmatch.drivers.camera.errors import ModelError
 log = logging.getLogger(__name__)
 
 INSTALL_HINT = (
-    "INT8 quantization needs the 'onnx' package: pip install onnx (or pip install 'mmatch[train]')"
+    "INT8 quantization needs the 'onnx' package: pip install onnx (or pip install 'mmatch[quantize]')"
 )
 
 

@@ -33,7 +33,7 @@ def service_logging(args: argparse.Namespace) -> None:
     """A service shows its effective config, status lines and summaries without -v
     (the journal is its log); -v/-vv still go further."""
     if getattr(args, "verbose", 0) == 0:
-        logging.getLogger("edge").setLevel(logging.INFO)
+        logging.getLogger("mmatch.edge").setLevel(logging.INFO)
 
 
 def load_config(args: argparse.Namespace, extra: dict | None = None):
