@@ -7,7 +7,7 @@ sources    radar (uart, dca1000, replay, sim) and camera (opencv, oak, replay, s
 node       per-frame CAV and Ego logic (pairing by capture time, several CAVs, link loss)
 loop       reader thread per sensor, bounded queues, health, clean stop
 recorder   chunked, rotated MCAP field logs with a free-disk floor; logreader reads up to a break
-logschema  log topics and records (foxglove.PointCloud JSON for the radar points)
+logschema  log topics and records (Foxglove protobuf schemas; raw device bytes schema-less)
 replay     logs and raw UART captures back through the Node
 health     systemd notify (READY, WATCHDOG, STATUS) without dependencies
 pipeline   the per-frame pipeline contract (process_view, codec, fuse)

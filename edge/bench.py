@@ -34,7 +34,7 @@ def bench_recorder(frames: int) -> dict:
             t0 = time.perf_counter()
             for i in range(frames):
                 stamp = 1000.0 + 0.05 * i
-                rec.write(logschema.POINTS, logschema.points_to_json(pts, stamp), stamp=stamp)
+                rec.write(logschema.POINTS, logschema.points_message(pts, stamp, "bench"), stamp=stamp)
                 rec.write(logschema.RAW_UART, raw)
             t_write = time.perf_counter() - t0
         t0 = time.perf_counter()

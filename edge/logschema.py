@@ -1,26 +1,37 @@
 """What the field log holds: topics, their MCAP schemas, and record encoders/decoders.
 
-Topics (MCAP channels):
+Everything but raw device bytes has a schema; what Foxglove can draw uses Foxglove's own
+schemas (package `foxglove-schemas-protobuf`, protobuf encoding), each vehicle in its own
+frame `<vehicle>/radar` (MMatch radar axes: x right, y forward, z up; docs/prerequisites.md):
 
-| topic | encoding | content |
+| topic | schema (encoding) | content |
 | --- | --- | --- |
-| /raw/uart | x-ti-uart (raw bytes) | UART data-port bytes as read (raw data: stops first when disk runs low) |
-| /raw/dca1000 | x-dca1000-frame | one raw ADC frame (raw data) |
-| /radar/points | json, schema foxglove.PointCloud | the radar points of each processed frame, Foxglove displays them |
-| /vehicle/frame | json, mmatch.SensorFrame | seq, stamps, camera detections + descriptors of each processed frame |
-| /shared/tx | x-mmatch-shared | encoded shared frames this vehicle published |
-| /shared/rx/<vehicle> | x-mmatch-shared | encoded shared frames received from <vehicle> |
-| /fused | json, mmatch.Fused | the Ego's fusion result per frame |
-| /health | json, mmatch.Health | rates and drops |
+| /raw/uart | none (x-ti-uart) | UART data-port bytes as read (raw device bytes; stop first when disk runs low) |
+| /raw/dca1000 | none (x-dca1000-frame) | one raw ADC frame (raw device bytes) |
+| /radar/points | foxglove.PointCloud | this vehicle's radar points per processed frame: x, y, z, doppler, snr |
+| /vehicle/frame | mmatch.SensorFrame (json) | seq, stamps, camera detections + descriptors of each processed frame |
+| /shared/tx | mmatch.SharedFrameWire (json) | each shared frame this vehicle published, its wire bytes (base64) |
+| /shared/rx/<v> | mmatch.SharedFrameWire (json) | each shared frame received from vehicle <v> (what replay feeds back) |
+| <shared>/points | foxglove.PointCloud | a shared frame's vehicle points in `<sender>/radar`: x, y, z, doppler, snr, vehicle |
+| <shared>/background | foxglove.PointCloud | its stationary-background sketch: x, y, z |
+| <shared>/vehicles | foxglove.SceneUpdate | its vehicles at the camera's centre estimates |
+| /fused | mmatch.Fused (json) | the Ego's fusion result per frame (docs/formats.md) |
+| /fused/objects | foxglove.SceneUpdate | fused objects in `<ego>/radar`, coloured by source; each CAV's radar as an arrow |
+| /tf | foxglove.FrameTransforms | T_ego_cav of every fused CAV: parent `<ego>/radar`, child `<cav>/radar` |
+| /tf/quality | mmatch.TransformQuality (json) | per CAV and frame: status, confidence, covariance (x, y, yaw) of that transform |
+| /health | mmatch.Health (json) | rates and drops |
 
-Log times are the recorder's strictly increasing clock (ns), so file order is the order in
-which the loop saw things; replaying in that order reproduces the live pairing.
+(<shared> is /shared/tx or /shared/rx/<v>.) Log times are the recorder's strictly
+increasing clock (ns), so file order is the order in which the loop saw things; replaying
+in that order reproduces the live pairing. Message timestamps are capture stamps.
 """
 
 from __future__ import annotations
 
 import base64
+import functools
 import json
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,104 +46,383 @@ FRAME = "/vehicle/frame"
 SHARED_TX = "/shared/tx"
 SHARED_RX_PREFIX = "/shared/rx/"
 FUSED = "/fused"
+FUSED_OBJECTS = "/fused/objects"
+TF = "/tf"
+TF_QUALITY = "/tf/quality"
 HEALTH = "/health"
+#: views of a shared frame, below its wire topic
+SHARED_POINTS, SHARED_BACKGROUND, SHARED_VEHICLES = "/points", "/background", "/vehicles"
 
 RAW_TOPICS = (RAW_UART, RAW_DCA)
-
-# foxglove.PointCloud as JSON schema (bytes fields are base64 strings in JSON encoding).
-_VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
-_QUAT = {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}
-POINTCLOUD_SCHEMA = {
-    "title": "foxglove.PointCloud",
-    "description": "A collection of N-dimensional points, which may contain additional fields with "
-                   "information like normals, intensity, etc.",
-    "type": "object",
-    "properties": {
-        "timestamp": {"type": "object", "title": "time",
-                      "properties": {"sec": {"type": "integer", "minimum": 0},
-                                     "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}},
-        "frame_id": {"type": "string"},
-        "pose": {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}},
-        "point_stride": {"type": "integer", "minimum": 0},
-        "fields": {"type": "array", "items": {
-            "type": "object", "title": "foxglove.PackedElementField",
-            "properties": {"name": {"type": "string"}, "offset": {"type": "integer", "minimum": 0},
-                           "type": {"type": "integer", "title": "foxglove.NumericType",
-                                    "description": "FLOAT32 = 7"}}}},
-        "data": {"type": "string", "contentEncoding": "base64"},
-    },
-}
-FLOAT32 = 7
 POINT_FIELDS = ("x", "y", "z", "doppler", "snr")
+SHARED_POINT_FIELDS = (*POINT_FIELDS, "vehicle")
+FLOAT32 = 7  # foxglove.PackedElementField.NumericType.FLOAT32
 
-SCHEMAS: dict[str, tuple[str, str, bytes, str]] = {
-    # topic: (schema name, schema encoding, schema data, message encoding)
-    RAW_UART: ("mmatch.RawUart", "", b"", "x-ti-uart"),
-    RAW_DCA: ("mmatch.RawDca1000", "", b"", "x-dca1000-frame"),
-    POINTS: ("foxglove.PointCloud", "jsonschema", json.dumps(POINTCLOUD_SCHEMA).encode(), "json"),
-    FRAME: ("mmatch.SensorFrame", "jsonschema", json.dumps({
-        "type": "object", "properties": {
-            "seq": {"type": "integer"}, "stamp": {"type": "number"}, "host_time": {"type": "number"},
-            "frame_number": {"type": "integer"}, "camera_stamp": {"type": "number"},
-            "boxes": {"type": "array"}, "features": {"type": "string", "contentEncoding": "base64"}}}).encode(),
-        "json"),
-    SHARED_TX: ("mmatch.SharedFrameWire", "", b"", "x-mmatch-shared"),
-    FUSED: ("mmatch.Fused", "jsonschema", json.dumps({"type": "object"}).encode(), "json"),
-    HEALTH: ("mmatch.Health", "jsonschema", json.dumps({"type": "object"}).encode(), "json"),
+#: nominal vehicle box (width along x, length along y, height), m: the size of a marker at an
+#: object's centre; headings are not estimated, so the box stays aligned with the radar axes
+VEHICLE_BOX_M = (1.8, 4.5, 1.5)
+#: colours (r, g, b, a) of fused objects by source: 0 own, 1 other vehicle, 2 seen by both
+SOURCE_COLOURS = {0: (0.20, 0.45, 1.00, 0.6), 1: (1.00, 0.55, 0.10, 0.6), 2: (0.20, 0.80, 0.30, 0.7)}
+SOURCE_NAMES = {0: "own", 1: "other", 2: "both"}
+
+
+def radar_frame(vehicle: str) -> str:
+    """The Foxglove / TF frame id of a vehicle's radar."""
+    return f"{vehicle}/radar"
+
+
+# --------------------------------------------------------------------------- schemas
+
+def _json_schema(title: str, properties: dict | None = None) -> bytes:
+    return json.dumps({"title": title, "type": "object", "properties": properties or {}}).encode()
+
+
+_TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+_B64 = {"type": "string", "contentEncoding": "base64"}
+JSON_SCHEMAS: dict[str, bytes] = {
+    "mmatch.SensorFrame": _json_schema("mmatch.SensorFrame", {
+        "seq": {"type": "integer"}, "stamp": {"type": "number"}, "stamp_ns": {"type": "integer"},
+        "host_time": {"type": "number"}, "frame_number": {"type": "integer"},
+        "camera_stamp": {"type": ["number", "null"]}, "boxes": _B64, "features": _B64,
+        "num_points": {"type": "integer"}}),
+    "mmatch.SharedFrameWire": _json_schema("mmatch.SharedFrameWire", {
+        "timestamp": _TIME, "sender": {"type": "string"}, "seq": {"type": "integer"},
+        "stamp": {"type": "number"}, "data": _B64}),
+    # the fused and health messages are documented in docs/formats.md; their schema stays an
+    # open object (both grow with the features that fill them)
+    "mmatch.Fused": json.dumps({"type": "object"}).encode(),
+    "mmatch.TransformQuality": _json_schema("mmatch.TransformQuality", {
+        "timestamp": _TIME, "parent_frame_id": {"type": "string"}, "child_frame_id": {"type": "string"},
+        "status": {"type": "string"}, "reason": {"type": "string"},
+        "confidence": {"type": ["number", "null"]},
+        "covariance": {"type": ["array", "null"], "items": {"type": "number"},
+                       "description": "3x3 row-major, (x m, y m, yaw rad) in the parent frame"}}),
+    "mmatch.Health": json.dumps({"type": "object"}).encode(),
 }
+
+
+@functools.cache
+def _foxglove(name: str) -> Any:
+    """The foxglove_schemas_protobuf message class `name` (e.g. "PointCloud")."""
+    import importlib
+
+    return getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)
+
+
+@functools.cache
+def _descriptor_set(name: str) -> bytes:
+    """The serialized FileDescriptorSet of a Foxglove message and everything it imports (the
+    MCAP schema data of the protobuf profile)."""
+    from google.protobuf.descriptor_pb2 import FileDescriptorSet
+
+    fds = FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(fd: Any) -> None:
+        if fd.name in seen:
+            return
+        seen.add(fd.name)
+        for dep in fd.dependencies:
+            add(dep)
+        fd.CopyToProto(fds.file.add())
+
+    add(_foxglove(name).DESCRIPTOR.file)
+    return fds.SerializeToString()
+
+
+RAW_SCHEMAS = {RAW_UART: "x-ti-uart", RAW_DCA: "x-dca1000-frame"}
+_EXACT = {POINTS: "PointCloud", FRAME: "mmatch.SensorFrame", SHARED_TX: "mmatch.SharedFrameWire",
+          FUSED: "mmatch.Fused", FUSED_OBJECTS: "SceneUpdate", TF: "FrameTransforms",
+          TF_QUALITY: "mmatch.TransformQuality", HEALTH: "mmatch.Health"}
+_VIEWS = {SHARED_POINTS: "PointCloud", SHARED_BACKGROUND: "PointCloud", SHARED_VEHICLES: "SceneUpdate"}
+
+
+def parse_shared_topic(topic: str) -> tuple[str, str, str] | None:
+    """("tx" | "rx", vehicle ("" for tx), view ("" for the wire record)) of a shared topic."""
+    if topic == SHARED_TX or (topic.startswith(SHARED_TX + "/") and topic[len(SHARED_TX):] in _VIEWS):
+        return "tx", "", topic[len(SHARED_TX):]
+    if topic.startswith(SHARED_RX_PREFIX):
+        vehicle, _, view = topic[len(SHARED_RX_PREFIX):].partition("/")
+        view = f"/{view}" if view else ""
+        if vehicle and (not view or view in _VIEWS):
+            return "rx", vehicle, view
+    return None
+
+
+def _kind(topic: str) -> str:
+    if topic in _EXACT:
+        return _EXACT[topic]
+    shared = parse_shared_topic(topic)
+    if shared is None:
+        raise ValueError(f"unknown log topic {topic!r}")
+    return _VIEWS[shared[2]] if shared[2] else "mmatch.SharedFrameWire"
 
 
 def schema_for(topic: str) -> tuple[str, str, bytes, str]:
-    """(schema name, schema encoding, schema data, message encoding) of a topic."""
-    if topic.startswith(SHARED_RX_PREFIX):
-        return SCHEMAS[SHARED_TX]
-    try:
-        return SCHEMAS[topic]
-    except KeyError:
-        raise ValueError(f"unknown log topic {topic!r}") from None
+    """(schema name, schema encoding, schema data, message encoding) of a topic; raw device
+    bytes alone have no schema."""
+    if topic in RAW_SCHEMAS:
+        return (f"mmatch.Raw{'Uart' if topic == RAW_UART else 'Dca1000'}", "", b"", RAW_SCHEMAS[topic])
+    kind = _kind(topic)
+    if kind.startswith("mmatch."):
+        return kind, "jsonschema", JSON_SCHEMAS[kind], "json"
+    return f"foxglove.{kind}", "protobuf", _descriptor_set(kind), "protobuf"
 
 
 def is_raw(topic: str) -> bool:
     return topic in RAW_TOPICS
 
 
+# --------------------------------------------------------------------------- point clouds
+
+def _stamp_ns(stamp: float) -> int:
+    return max(int(round(stamp * 1e9)), 0)
+
+
 def _time(stamp: float) -> dict:
-    ns = int(round(stamp * 1e9))
-    return {"sec": max(ns, 0) // 1_000_000_000, "nsec": max(ns, 0) % 1_000_000_000}
+    ns = _stamp_ns(stamp)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
 
 
-def points_to_json(points: np.ndarray, stamp: float, frame_id: str = "radar") -> dict:
-    """A foxglove.PointCloud (JSON encoding) of float32 (N, 5) x, y, z, doppler, snr points."""
-    pts = np.ascontiguousarray(points, dtype="<f4").reshape(-1, 5)
-    return {
-        "timestamp": _time(stamp),
-        "frame_id": frame_id,
-        "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0},
-                 "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
-        "point_stride": 20,
-        "fields": [{"name": n, "offset": 4 * i, "type": FLOAT32} for i, n in enumerate(POINT_FIELDS)],
-        "data": base64.b64encode(pts.tobytes()).decode("ascii"),
-    }
+def _set_time(ts: Any, stamp: float) -> None:
+    ns = _stamp_ns(stamp)
+    ts.seconds, ts.nanos = ns // 1_000_000_000, ns % 1_000_000_000
 
 
-def points_from_json(msg: dict) -> tuple[np.ndarray, float]:
-    """(float32 (N, 5) points, stamp s) back from `points_to_json` output."""
+def point_cloud(points: np.ndarray, names: tuple[str, ...], stamp: float, frame_id: str) -> bytes:
+    """A foxglove.PointCloud (protobuf bytes) of float32 columns `names`; stamp in s."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype="<f4").reshape(-1, len(names)))
+    msg = _foxglove("PointCloud")()
+    _set_time(msg.timestamp, stamp)
+    msg.frame_id = frame_id
+    msg.pose.orientation.w = 1.0
+    msg.point_stride = 4 * len(names)
+    for i, name in enumerate(names):
+        field = msg.fields.add()
+        field.name, field.offset, field.type = name, 4 * i, FLOAT32
+    msg.data = pts.tobytes()
+    return msg.SerializeToString()
+
+
+def points_message(points: np.ndarray, stamp: float, vehicle: str) -> bytes:
+    """/radar/points: a vehicle's float32 (N, 5) x, y, z, doppler, snr in `<vehicle>/radar`."""
+    return point_cloud(points, POINT_FIELDS, stamp, radar_frame(vehicle))
+
+
+def point_cloud_from_bytes(data: bytes, names: tuple[str, ...]) -> tuple[np.ndarray, float, str]:
+    """(float32 (N, len(names)) points, stamp s, frame id) of a foxglove.PointCloud whose
+    fields are exactly `names`, packed float32; ParseError otherwise."""
+    from google.protobuf.message import DecodeError
+
+    msg = _foxglove("PointCloud")()
     try:
-        if msg["point_stride"] != 20 or [f["name"] for f in msg["fields"]] != list(POINT_FIELDS):
-            raise ParseError("point cloud layout is not x, y, z, doppler, snr float32")
-        raw = base64.b64decode(msg["data"])
+        msg.ParseFromString(data)
+    except DecodeError as exc:
+        raise ParseError(f"bad point cloud record: {exc}") from exc
+    layout = [(f.name, f.offset, f.type) for f in msg.fields]
+    if layout != [(n, 4 * i, FLOAT32) for i, n in enumerate(names)] or msg.point_stride != 4 * len(names):
+        raise ParseError(f"point cloud layout is not {', '.join(names)} float32")
+    if len(msg.data) % msg.point_stride:
+        raise ParseError("point cloud data is not a whole number of points")
+    pts = np.frombuffer(msg.data, dtype="<f4").reshape(-1, len(names)).astype(np.float32)
+    return pts, msg.timestamp.seconds + msg.timestamp.nanos * 1e-9, msg.frame_id
+
+
+def points_from_message(data: bytes, encoding: str = "protobuf") -> tuple[np.ndarray, float]:
+    """(float32 (N, 5) points, stamp s) of a /radar/points record; `encoding` "json" reads the
+    JSON point clouds of logs written before the protobuf schemas."""
+    if encoding == "json":
+        try:
+            msg = json.loads(data)
+            if msg["point_stride"] != 20 or [f["name"] for f in msg["fields"]] != list(POINT_FIELDS):
+                raise ParseError("point cloud layout is not x, y, z, doppler, snr float32")
+            raw = base64.b64decode(msg["data"])
+            stamp = msg["timestamp"]["sec"] + msg["timestamp"]["nsec"] * 1e-9
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ParseError(f"bad point cloud record: {exc}") from exc
         if len(raw) % 20:
             raise ParseError("point cloud data is not a whole number of points")
-        stamp = msg["timestamp"]["sec"] + msg["timestamp"]["nsec"] * 1e-9
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ParseError(f"bad point cloud record: {exc}") from exc
-    return np.frombuffer(raw, dtype="<f4").reshape(-1, 5).astype(np.float32), stamp
+        return np.frombuffer(raw, dtype="<f4").reshape(-1, 5).astype(np.float32), stamp
+    pts, stamp, _ = point_cloud_from_bytes(data, POINT_FIELDS)
+    return pts, stamp
 
 
 def stamp_key(stamp: float) -> int:
     """Integer ns key used to join a frame record with its point cloud."""
     return int(round(stamp * 1e9))
 
+
+# --------------------------------------------------------------------------- scene entities
+
+def _quat_z(yaw: float) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation by `yaw` rad about z."""
+    return 0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)
+
+
+def quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) unit quaternion of a 3x3 rotation matrix (w >= 0)."""
+    R = np.asarray(R, np.float64)
+    w = math.sqrt(max(0.0, 1.0 + R[0, 0] + R[1, 1] + R[2, 2])) / 2
+    x = math.sqrt(max(0.0, 1.0 + R[0, 0] - R[1, 1] - R[2, 2])) / 2
+    y = math.sqrt(max(0.0, 1.0 - R[0, 0] + R[1, 1] - R[2, 2])) / 2
+    z = math.sqrt(max(0.0, 1.0 - R[0, 0] - R[1, 1] + R[2, 2])) / 2
+    x = math.copysign(x, R[2, 1] - R[1, 2])
+    y = math.copysign(y, R[0, 2] - R[2, 0])
+    z = math.copysign(z, R[1, 0] - R[0, 1])
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    return x / n, y / n, z / n, w / n
+
+
+def _entity(update: Any, stamp: float, frame_id: str, entity_id: str) -> Any:
+    e = update.entities.add()
+    _set_time(e.timestamp, stamp)
+    e.frame_id, e.id = frame_id, entity_id
+    return e
+
+
+def _box(e: Any, x: float, y: float, z: float, colour: tuple, label: str) -> None:
+    cube = e.cubes.add()
+    cube.pose.position.x, cube.pose.position.y, cube.pose.position.z = x, y, z
+    cube.pose.orientation.w = 1.0
+    cube.size.x, cube.size.y, cube.size.z = VEHICLE_BOX_M
+    cube.color.r, cube.color.g, cube.color.b, cube.color.a = colour
+    text = e.texts.add()
+    text.pose.position.x, text.pose.position.y = x, y
+    text.pose.position.z = z + VEHICLE_BOX_M[2]
+    text.pose.orientation.w = 1.0
+    text.billboard, text.font_size, text.scale_invariant = True, 14.0, True
+    text.color.r = text.color.g = text.color.b = text.color.a = 1.0
+    text.text = label
+
+
+def _meta(e: Any, **values: Any) -> None:
+    for k, v in values.items():
+        kv = e.metadata.add()
+        kv.key, kv.value = k, "" if v is None else str(v)
+
+
+def _new_update(stamp: float) -> Any:
+    """A SceneUpdate that first deletes every earlier entity (each update is the whole view)."""
+    update = _foxglove("SceneUpdate")()
+    deletion = update.deletions.add()
+    _set_time(deletion.timestamp, stamp)
+    deletion.type = _foxglove("SceneEntityDeletion").ALL
+    return update
+
+
+def _centre_z(radar_height: float) -> float:
+    """z of a vehicle's box centre in a radar frame: the road is radar_height below it."""
+    return VEHICLE_BOX_M[2] / 2 - float(radar_height)
+
+
+# --------------------------------------------------------------------------- shared frames
+
+def shared_topic(vehicle: str | None, view: str = "") -> str:
+    """The wire topic of shared frames (own: vehicle None; received: the sender) + a view."""
+    return (SHARED_TX if vehicle is None else SHARED_RX_PREFIX + vehicle) + view
+
+
+def shared_records(topic: str, payload: bytes, frame: Any) -> list[tuple[str, bytes | dict]]:
+    """The records of one shared frame under its wire topic `topic` (shared_topic): the wire
+    bytes, and the decoded frame `frame` (SharedFrame) as Foxglove point clouds and scene."""
+    fid = radar_frame(frame.sender)
+    stamp = float(frame.stamp)
+    wire = {"timestamp": _time(stamp), "sender": frame.sender, "seq": int(frame.seq), "stamp": stamp,
+            "data": base64.b64encode(bytes(payload)).decode("ascii")}
+    pts = np.asarray(frame.vehicle_points, np.float32).reshape(-1, 5)
+    idx = np.asarray(frame.vehicle_index, np.float32).reshape(-1, 1)
+    update = _new_update(stamp)
+    z = _centre_z(frame.radar_height)
+    boxes = np.asarray(frame.vehicle_boxes, np.float32).reshape(-1, 6)
+    for i, (x, y) in enumerate(np.asarray(frame.vehicle_centers, np.float64).reshape(-1, 2)):
+        e = _entity(update, stamp, fid, f"{frame.sender}/{i}")
+        _box(e, float(x), float(y), z, SOURCE_COLOURS[1], f"{frame.sender} {i}")
+        _meta(e, score=f"{boxes[i, 4]:.2f}" if i < len(boxes) else None,
+              camera_depth_m=f"{boxes[i, 5]:.2f}" if i < len(boxes) else None)
+    return [
+        (topic, wire),
+        (topic + SHARED_POINTS, point_cloud(np.hstack([pts, idx]), SHARED_POINT_FIELDS, stamp, fid)),
+        (topic + SHARED_BACKGROUND, point_cloud(frame.background, ("x", "y", "z"), stamp, fid)),
+        (topic + SHARED_VEHICLES, update.SerializeToString()),
+    ]
+
+
+def shared_payload(data: bytes, encoding: str) -> bytes:
+    """The wire bytes of a /shared/tx or /shared/rx/<v> record (JSON, or raw in older logs)."""
+    if encoding != "json":
+        return bytes(data)
+    try:
+        return base64.b64decode(json.loads(data)["data"], validate=True)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ParseError(f"bad shared frame record: {exc}") from exc
+
+
+# --------------------------------------------------------------------------- fused results
+
+def _finite(x: Any) -> float | None:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def fused_records(msg: dict, radar_height: float) -> list[tuple[str, bytes | dict]]:
+    """The Foxglove view of one fused message (docs/formats.md): the transforms of the fused
+    CAVs on /tf, their quality on /tf/quality, and the objects on /fused/objects."""
+    stamp = float(msg["stamp"])
+    ego = radar_frame(msg["vehicle"])
+    transforms = _foxglove("FrameTransforms")()
+    quality: list[tuple[str, bytes | dict]] = []
+    update = _new_update(stamp)
+    for cav in msg.get("cavs", []):
+        child = radar_frame(cav["id"])
+        T = cav.get("T_ego_cav")
+        fused = cav.get("status") == "fused" and T is not None
+        confidence = _finite(cav.get("confidence"))
+        cov = cav.get("covariance")
+        quality.append((TF_QUALITY, {
+            "timestamp": _time(stamp), "parent_frame_id": ego, "child_frame_id": child,
+            "status": cav.get("status", ""), "reason": cav.get("reason", ""), "confidence": confidence,
+            "covariance": None if cov is None else [_finite(v) for v in np.ravel(cov)]}))
+        if not fused:
+            continue
+        T = np.asarray(T, np.float64).reshape(4, 4)
+        tf = transforms.transforms.add()
+        _set_time(tf.timestamp, stamp)
+        tf.parent_frame_id, tf.child_frame_id = ego, child
+        tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in T[:3, 3])
+        r = tf.rotation
+        r.x, r.y, r.z, r.w = quaternion(T[:3, :3])
+        forward = T[:3, :3] @ np.array([0.0, 1.0, 0.0])     # the CAV radar's boresight
+        e = _entity(update, stamp, ego, f"{cav['id']}/radar")
+        arrow = e.arrows.add()
+        arrow.pose.position.x, arrow.pose.position.y, arrow.pose.position.z = (float(v) for v in T[:3, 3])
+        o = arrow.pose.orientation
+        o.x, o.y, o.z, o.w = _quat_z(math.atan2(forward[1], forward[0]))
+        arrow.shaft_length, arrow.shaft_diameter, arrow.head_length, arrow.head_diameter = 3.0, 0.3, 1.0, 0.8
+        arrow.color.r, arrow.color.g, arrow.color.b, arrow.color.a = SOURCE_COLOURS[1]
+        _meta(e, vehicle=cav["id"], confidence=confidence, pairs=len(cav.get("pairs", [])),
+              reason=cav.get("reason", ""))
+    z = _centre_z(radar_height)
+    objects = [list(map(float, o)) for o in msg.get("objects", [])]
+    for row in objects:  # x, y, source, index[, track id]: ids per frame until objects are tracked
+        x, y, src, index = row[0], row[1], int(row[2]), int(row[3])
+        track = int(row[4]) if len(row) > 4 and row[4] >= 0 else None
+        name = SOURCE_NAMES.get(src, str(src))
+        e = _entity(update, stamp, ego, f"{name}/{index}" if track is None else f"track/{track}")
+        label = f"{name} {index}" if track is None else f"#{track} ({name})"
+        _box(e, x, y, z, SOURCE_COLOURS.get(src, (1.0, 1.0, 1.0, 0.5)), label)
+        _meta(e, source=name, index=index, track=track)
+    out: list[tuple[str, bytes | dict]] = []
+    if transforms.transforms:
+        out.append((TF, transforms.SerializeToString()))
+    out += quality
+    out.append((FUSED_OBJECTS, update.SerializeToString()))
+    return out
+
+
+# --------------------------------------------------------------------------- sensor frames
 
 def _b64(a: np.ndarray) -> str:
     return base64.b64encode(np.ascontiguousarray(a, dtype="<f4").tobytes()).decode("ascii")

@@ -288,7 +288,8 @@ class VehicleLoop:
         self.rates["frames"].add()
         if self.node is None:
             if self.recorder is not None:
-                self.recorder.write(logschema.POINTS, logschema.points_to_json(frame.points, frame.stamp),
+                self.recorder.write(logschema.POINTS,
+                                    logschema.points_message(frame.points, frame.stamp, self.cfg.vehicle.id),
                                     stamp=frame.stamp)
                 self.recorder.write(logschema.FRAME, logschema.frame_to_json(frame), stamp=frame.stamp)
             return

@@ -78,7 +78,7 @@ def log_events(path: str | Path, report: logreader.LogReport | None = None,
             current = m.file
         try:
             if m.topic == logschema.POINTS:
-                pts, stamp = logschema.points_from_json(json.loads(m.data))
+                pts, stamp = logschema.points_from_message(m.data, m.encoding)
                 pending[logschema.stamp_key(stamp)] = pts
                 if len(pending) > 64:
                     pending.pop(next(iter(pending)))
@@ -90,8 +90,10 @@ def log_events(path: str | Path, report: logreader.LogReport | None = None,
                     continue
                 yield Event("frame", m.log_time_ns, frame=logschema.frame_from_json(msg, pts))
             elif m.topic.startswith(logschema.SHARED_RX_PREFIX):
-                yield Event("rx", m.log_time_ns, vehicle=m.topic[len(logschema.SHARED_RX_PREFIX):],
-                            data=m.data)
+                shared = logschema.parse_shared_topic(m.topic)
+                if shared is not None and not shared[2]:  # the wire record, not a decoded view
+                    yield Event("rx", m.log_time_ns, vehicle=shared[1],
+                                data=logschema.shared_payload(m.data, m.encoding))
             elif m.topic == logschema.FUSED:
                 yield Event("fused", m.log_time_ns, msg=json.loads(m.data))
             elif raw and m.topic == logschema.RAW_UART:

@@ -33,31 +33,35 @@ def test_round_trip_all_topic_kinds(tmp_path):
     pts = np.random.default_rng(0).normal(size=(37, 5)).astype(np.float32)
     with Recorder(_cfg(tmp_path), config_text="[vehicle]\nid = \"t\"\n") as rec:
         assert rec.write(logschema.RAW_UART, b"\x02\x01\x04\x03\x06\x05\x08\x07abc")
-        assert rec.write(logschema.POINTS, logschema.points_to_json(pts, 12.5), stamp=12.5)
-        assert rec.write(logschema.SHARED_RX_PREFIX + "cav1", b"wire")
+        assert rec.write(logschema.POINTS, logschema.points_message(pts, 12.5, "t"), stamp=12.5)
+        assert rec.write(logschema.SHARED_RX_PREFIX + "cav1", {"data": "d2lyZQ=="})
         assert rec.write(logschema.FUSED, {"seq": 1, "status": "fused"})
     report = logreader.LogReport()
     msgs = list(logreader.read_messages(rec.files[0], report=report))
     assert [m.topic for m in msgs] == ["/raw/uart", "/radar/points", "/shared/rx/cav1", "/fused"]
     assert report.truncated == [] and report.messages == 4
     assert any(k.endswith(":config") for k in report.metadata)
-    back, stamp = logschema.points_from_json(json.loads(msgs[1].data))
+    back, stamp = logschema.points_from_message(msgs[1].data)
     np.testing.assert_array_equal(back, pts)
     assert stamp == pytest.approx(12.5)
-    assert msgs[1].schema == "foxglove.PointCloud" and msgs[1].encoding == "json"
+    assert msgs[1].schema == "foxglove.PointCloud" and msgs[1].encoding == "protobuf"
+    assert logschema.shared_payload(msgs[2].data, msgs[2].encoding) == b"wire"
     assert [m.log_time_ns for m in msgs] == sorted({m.log_time_ns for m in msgs})
     # the effective config is saved beside the log
     assert list((tmp_path / "logs").glob("*.config.toml"))
 
 
 def test_foxglove_pointcloud_layout():
-    msg = logschema.points_to_json(np.ones((3, 5), np.float32), 1.25)
-    assert msg["point_stride"] == 20 and msg["timestamp"] == {"sec": 1, "nsec": 250_000_000}
-    assert [(f["name"], f["offset"], f["type"]) for f in msg["fields"]] == [
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
+    msg = PointCloud.FromString(logschema.points_message(np.ones((3, 5), np.float32), 1.25, "cav1"))
+    assert msg.point_stride == 20 and (msg.timestamp.seconds, msg.timestamp.nanos) == (1, 250_000_000)
+    assert msg.frame_id == "cav1/radar"
+    assert [(f.name, f.offset, f.type) for f in msg.fields] == [
         ("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("doppler", 12, 7), ("snr", 16, 7)]
-    schema = json.loads(logschema.SCHEMAS[logschema.POINTS][2])
-    assert schema["title"] == "foxglove.PointCloud"
-    assert set(schema["properties"]) == {"timestamp", "frame_id", "pose", "point_stride", "fields", "data"}
+    name, encoding, data, message_encoding = logschema.schema_for(logschema.POINTS)
+    assert (name, encoding, message_encoding) == ("foxglove.PointCloud", "protobuf", "protobuf")
+    assert b"foxglove/PointCloud.proto" in data
 
 
 def test_rotation_by_size_and_time(tmp_path):
