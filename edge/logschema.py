@@ -32,6 +32,7 @@ import base64
 import functools
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -322,15 +323,25 @@ def shared_topic(vehicle: str | None, view: str = "") -> str:
     return (SHARED_TX if vehicle is None else SHARED_RX_PREFIX + vehicle) + view
 
 
-def shared_records(topic: str, payload: bytes, frame: Any) -> list[tuple[str, bytes | dict]]:
-    """The records of one shared frame under its wire topic `topic` (shared_topic): the wire
-    bytes, and the decoded frame `frame` (SharedFrame) as Foxglove point clouds and scene."""
-    fid = radar_frame(frame.sender)
+def _shared_wire(payload: bytes, frame: Any) -> dict:
     stamp = float(frame.stamp)
-    wire = {"timestamp": _time(stamp), "sender": frame.sender, "seq": int(frame.seq), "stamp": stamp,
+    return {"timestamp": _time(stamp), "sender": frame.sender, "seq": int(frame.seq), "stamp": stamp,
             "data": base64.b64encode(bytes(payload)).decode("ascii")}
+
+
+def _shared_points(frame: Any) -> bytes:
     pts = np.asarray(frame.vehicle_points, np.float32).reshape(-1, 5)
     idx = np.asarray(frame.vehicle_index, np.float32).reshape(-1, 1)
+    return point_cloud(np.hstack([pts, idx]), SHARED_POINT_FIELDS, float(frame.stamp), radar_frame(frame.sender))
+
+
+def _shared_background(frame: Any) -> bytes:
+    return point_cloud(frame.background, ("x", "y", "z"), float(frame.stamp), radar_frame(frame.sender))
+
+
+def _shared_vehicles(frame: Any) -> bytes:
+    stamp = float(frame.stamp)
+    fid = radar_frame(frame.sender)
     update = _new_update(stamp)
     z = _centre_z(frame.radar_height)
     boxes = np.asarray(frame.vehicle_boxes, np.float32).reshape(-1, 6)
@@ -339,11 +350,22 @@ def shared_records(topic: str, payload: bytes, frame: Any) -> list[tuple[str, by
         _box(e, float(x), float(y), z, SOURCE_COLOURS[1], f"{frame.sender} {i}")
         _meta(e, score=f"{boxes[i, 4]:.2f}" if i < len(boxes) else None,
               camera_depth_m=f"{boxes[i, 5]:.2f}" if i < len(boxes) else None)
+    return update.SerializeToString()
+
+
+Record = tuple[str, Callable[[], "bytes | dict"]]
+
+
+def shared_records(topic: str, payload: bytes, frame: Any) -> list[Record]:
+    """The records of one shared frame under its wire topic `topic` (shared_topic): the wire
+    bytes, and the decoded frame `frame` (SharedFrame, not changed afterwards) as Foxglove
+    point clouds and scene. Each comes as (topic, builder) for `Recorder.write`, which calls
+    the builder on its writer thread."""
     return [
-        (topic, wire),
-        (topic + SHARED_POINTS, point_cloud(np.hstack([pts, idx]), SHARED_POINT_FIELDS, stamp, fid)),
-        (topic + SHARED_BACKGROUND, point_cloud(frame.background, ("x", "y", "z"), stamp, fid)),
-        (topic + SHARED_VEHICLES, update.SerializeToString()),
+        (topic, functools.partial(_shared_wire, payload, frame)),
+        (topic + SHARED_POINTS, functools.partial(_shared_points, frame)),
+        (topic + SHARED_BACKGROUND, functools.partial(_shared_background, frame)),
+        (topic + SHARED_VEHICLES, functools.partial(_shared_vehicles, frame)),
     ]
 
 
@@ -367,33 +389,38 @@ def _finite(x: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def fused_records(msg: dict, radar_height: float) -> list[tuple[str, bytes | dict]]:
-    """The Foxglove view of one fused message (docs/formats.md): the transforms of the fused
-    CAVs on /tf, their quality on /tf/quality, and the objects on /fused/objects."""
+def _fused_cavs(msg: dict) -> list[dict]:
+    return [c for c in msg.get("cavs", []) if c.get("status") == "fused" and c.get("T_ego_cav") is not None]
+
+
+def _transforms(msg: dict) -> bytes:
     stamp = float(msg["stamp"])
-    ego = radar_frame(msg["vehicle"])
     transforms = _foxglove("FrameTransforms")()
-    quality: list[tuple[str, bytes | dict]] = []
-    update = _new_update(stamp)
-    for cav in msg.get("cavs", []):
-        child = radar_frame(cav["id"])
-        T = cav.get("T_ego_cav")
-        fused = cav.get("status") == "fused" and T is not None
-        confidence = _finite(cav.get("confidence"))
-        cov = cav.get("covariance")
-        quality.append((TF_QUALITY, {
-            "timestamp": _time(stamp), "parent_frame_id": ego, "child_frame_id": child,
-            "status": cav.get("status", ""), "reason": cav.get("reason", ""), "confidence": confidence,
-            "covariance": None if cov is None else [_finite(v) for v in np.ravel(cov)]}))
-        if not fused:
-            continue
-        T = np.asarray(T, np.float64).reshape(4, 4)
+    for cav in _fused_cavs(msg):
+        T = np.asarray(cav["T_ego_cav"], np.float64).reshape(4, 4)
         tf = transforms.transforms.add()
         _set_time(tf.timestamp, stamp)
-        tf.parent_frame_id, tf.child_frame_id = ego, child
+        tf.parent_frame_id, tf.child_frame_id = radar_frame(msg["vehicle"]), radar_frame(cav["id"])
         tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in T[:3, 3])
         r = tf.rotation
         r.x, r.y, r.z, r.w = quaternion(T[:3, :3])
+    return transforms.SerializeToString()
+
+
+def _quality(msg: dict, cav: dict) -> dict:
+    cov = cav.get("covariance")
+    return {"timestamp": _time(float(msg["stamp"])), "parent_frame_id": radar_frame(msg["vehicle"]),
+            "child_frame_id": radar_frame(cav["id"]), "status": cav.get("status", ""),
+            "reason": cav.get("reason", ""), "confidence": _finite(cav.get("confidence")),
+            "covariance": None if cov is None else [_finite(v) for v in np.ravel(np.asarray(cov, object))]}
+
+
+def _scene(msg: dict, radar_height: float) -> bytes:
+    stamp = float(msg["stamp"])
+    ego = radar_frame(msg["vehicle"])
+    update = _new_update(stamp)
+    for cav in _fused_cavs(msg):
+        T = np.asarray(cav["T_ego_cav"], np.float64).reshape(4, 4)
         forward = T[:3, :3] @ np.array([0.0, 1.0, 0.0])     # the CAV radar's boresight
         e = _entity(update, stamp, ego, f"{cav['id']}/radar")
         arrow = e.arrows.add()
@@ -402,23 +429,29 @@ def fused_records(msg: dict, radar_height: float) -> list[tuple[str, bytes | dic
         o.x, o.y, o.z, o.w = _quat_z(math.atan2(forward[1], forward[0]))
         arrow.shaft_length, arrow.shaft_diameter, arrow.head_length, arrow.head_diameter = 3.0, 0.3, 1.0, 0.8
         arrow.color.r, arrow.color.g, arrow.color.b, arrow.color.a = SOURCE_COLOURS[1]
-        _meta(e, vehicle=cav["id"], confidence=confidence, pairs=len(cav.get("pairs", [])),
-              reason=cav.get("reason", ""))
+        _meta(e, vehicle=cav["id"], confidence=_finite(cav.get("confidence")),
+              pairs=len(cav.get("pairs", [])), reason=cav.get("reason", ""))
     z = _centre_z(radar_height)
-    objects = [list(map(float, o)) for o in msg.get("objects", [])]
-    for row in objects:  # x, y, source, index[, track id]: ids per frame until objects are tracked
-        x, y, src, index = row[0], row[1], int(row[2]), int(row[3])
+    for row in msg.get("objects", []):  # x, y, source, index[, track id]: ids per frame until tracked
+        x, y, src, index = float(row[0]), float(row[1]), int(row[2]), int(row[3])
         track = int(row[4]) if len(row) > 4 and row[4] >= 0 else None
         name = SOURCE_NAMES.get(src, str(src))
         e = _entity(update, stamp, ego, f"{name}/{index}" if track is None else f"track/{track}")
         label = f"{name} {index}" if track is None else f"#{track} ({name})"
         _box(e, x, y, z, SOURCE_COLOURS.get(src, (1.0, 1.0, 1.0, 0.5)), label)
         _meta(e, source=name, index=index, track=track)
-    out: list[tuple[str, bytes | dict]] = []
-    if transforms.transforms:
-        out.append((TF, transforms.SerializeToString()))
-    out += quality
-    out.append((FUSED_OBJECTS, update.SerializeToString()))
+    return update.SerializeToString()
+
+
+def fused_records(msg: dict, radar_height: float) -> list[Record]:
+    """The Foxglove view of one fused message `msg` (not changed afterwards; docs/formats.md):
+    the transforms of the fused CAVs on /tf, each CAV's transform quality on /tf/quality, the
+    objects on /fused/objects; as (topic, builder) for `Recorder.write`."""
+    out: list[Record] = []
+    if _fused_cavs(msg):
+        out.append((TF, functools.partial(_transforms, msg)))
+    out += [(TF_QUALITY, functools.partial(_quality, msg, cav)) for cav in msg.get("cavs", [])]
+    out.append((FUSED_OBJECTS, functools.partial(_scene, msg, radar_height)))
     return out
 
 

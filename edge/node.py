@@ -208,16 +208,14 @@ class Node:
             if frame.sender != vehicle:
                 rejected["sender_mismatch"] += 1
                 raise DecodeError(f"frame from {frame.sender!r} published under {vehicle!r}")
-        # encoded outside the lock (about 0.4 ms), written inside it: the log keeps the inbox order
-        records = [] if self.recorder is None else \
-            logschema.shared_records(logschema.shared_topic(vehicle), payload, frame)
         with self._cond:
             if (not self.cfg.ego.cavs and vehicle not in self.links and vehicle not in self._inbox
                     and len(set(self.links) | set(self._inbox)) >= self.cfg.ego.max_links):
                 rejected["link_cap"] += 1
                 raise Rejected("link_cap", f"{vehicle!r}: already {self.cfg.ego.max_links} CAVs")
-            for topic, record in records:
-                self.recorder.write(topic, record, stamp=frame.stamp)
+            if self.recorder is not None:  # the wire record and its Foxglove views (encoded later)
+                for topic, record in logschema.shared_records(logschema.shared_topic(vehicle), payload, frame):
+                    self.recorder.write(topic, record, stamp=frame.stamp)
             box = self._inbox.get(vehicle)
             if box is None:
                 box = self._inbox[vehicle] = collections.deque(maxlen=self.cfg.ego.history)

@@ -66,6 +66,13 @@ class _RawFile:
             self._fd = -1
 
 
+def _encode(data: bytes | bytearray | memoryview | dict) -> bytes:
+    """Record bytes: bytes as they are, a dict as compact JSON."""
+    if isinstance(data, (bytes, bytearray, memoryview)):
+        return bytes(data)
+    return json.dumps(data, separators=(",", ":")).encode()
+
+
 class Recorder:
     """Thread-safe MCAP writer with rotation and a disk floor. A context manager.
 
@@ -172,7 +179,14 @@ class Recorder:
                 log.error("recorder: %s; closing %s", exc, self.files[-1] if self.files else "?")
                 self._abandon_file()
 
-    def _write_now(self, topic: str, log_ns: int, pub_ns: int, payload: bytes) -> None:
+    def _write_now(self, topic: str, log_ns: int, pub_ns: int, payload: bytes | Callable) -> None:
+        if callable(payload):  # a deferred record: encoded here, off the caller's thread
+            try:
+                payload = _encode(payload())
+            except Exception:  # a bug in an encoder costs that record, not the log
+                self.dropped["encode_error"] += 1
+                log.exception("recorder: cannot encode a %s record", topic)
+                return
         if self._writer is None:
             self._start_file()
         self._maybe_rotate()
@@ -298,11 +312,15 @@ class Recorder:
         self._last_ns = t
         return t
 
-    def write(self, topic: str, data: bytes | dict, stamp: float | None = None) -> bool:
+    def write(self, topic: str, data: bytes | dict | Callable[[], bytes | dict],
+              stamp: float | None = None) -> bool:
         """Queue one message; False (and counted) when the disk floor, a full queue or a close
-        refuses it. Log times are strictly increasing in call order across threads."""
-        payload = bytes(data) if isinstance(data, (bytes, bytearray, memoryview)) else \
-            json.dumps(data, separators=(",", ":")).encode()
+        refuses it. Log times are strictly increasing in call order across threads.
+
+        `data`: bytes (raw, protobuf), a dict (JSON), or a function of no argument returning
+        either, called on the writer thread (views that cost encoding time, e.g. Foxglove
+        scenes, stay off the loop); its log time is still taken here, in call order."""
+        payload = data if callable(data) else _encode(data)
         logschema.schema_for(topic)  # an unknown topic is a bug: raise in the caller
         with self._lock:
             if self._closed or self._thread is None:

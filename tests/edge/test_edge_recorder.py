@@ -194,3 +194,25 @@ def test_disk_error_costs_the_file_not_the_recorder(tmp_path, monkeypatch):
     first, second = ([json.loads(m.data)["i"] for m in logreader.read_messages(f)] for f in rec.files)
     assert first == list(range(len(first))) and len(first) >= 5  # its complete chunks survive
     assert second[-1] == 59 and len(second) >= 35  # recording went on in a new file
+
+
+def test_deferred_records_keep_call_order_and_a_failing_one_costs_only_itself(tmp_path):
+    import threading
+
+    caller = threading.get_ident()
+    seen: list[int] = []
+
+    def build(i: int):  # noqa: ANN202
+        seen.append(threading.get_ident())
+        if i == 2:
+            raise ValueError("broken encoder")
+        return {"i": i}
+
+    with Recorder(_cfg(tmp_path)) as rec:
+        for i in range(4):
+            assert rec.write(logschema.FUSED, lambda i=i: build(i))
+        assert rec.write(logschema.HEALTH, {"eager": True})
+    msgs = list(logreader.read_messages(rec.files[0]))
+    assert [json.loads(m.data) for m in msgs] == [{"i": 0}, {"i": 1}, {"i": 3}, {"eager": True}]
+    assert rec.dropped == {"encode_error": 1}
+    assert caller not in seen and len(seen) == 4  # built on the writer thread
