@@ -401,7 +401,8 @@ class Node:
 
     def summary(self) -> dict[str, Any]:
         c = self.counters
-        return {"frames": c.frames, "fused": c.fused, "paired": c.paired, "single": c.single,
+        return {"frames": c.frames, "published_shared": c.published_shared, "fused": c.fused,
+                "paired": c.paired, "single": c.single,
                 "no_estimate": c.no_estimate, "rx": c.rx, "rx_rejected": dict(c.rx_rejected),
                 "budget_skipped": c.budget_skipped, "links_expired": c.links_expired,
                 "links": {n: {"up": s.up, "gaps": s.gaps, "confidence": s.confidence,

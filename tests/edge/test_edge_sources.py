@@ -180,6 +180,7 @@ def test_edge_bench_quick_numbers():
     out = run(quick=True)
     assert out["recorder_frames_per_s"] > 20 and out["reader_messages_per_s"] > 40
     assert 0 < out["zenoh_rtt_ms_median"] < 1000 and out["zenoh_rtt_lost"] == 0
+    assert 0 < out["auth_sign_verify_ms_median"] < 50 and out["auth_forged_refused_per_s"] > 10
 
 
 def test_sim_vehicle_clock_offset_shifts_stamps_not_the_world():
