@@ -14,6 +14,7 @@ from mmatch.errors import MMatchError
 COMMANDS: dict[str, str] = {
     "sim": "mmatch.edge.commands.sim",
     "eval": "mmatch.edge.commands.evaluate",
+    "report": "mmatch.edge.commands.report",
     "demo": "mmatch.edge.commands.demo",
     "egomotion": "mmatch.edge.commands.egomotion",
     "bench": "mmatch.edge.commands.bench",

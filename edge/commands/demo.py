@@ -23,11 +23,7 @@ def run(args: argparse.Namespace) -> int:
 
     from mmatch.edge.commands.progress import Progress
     from mmatch.bev_plot import draw_bev
-    from mmatch.cav.process import process_view
-    from mmatch.codec import decode, encode
-    from mmatch.ego.base import far_side_centres
     from mmatch.evaluate import EvalConfig, evaluate_dir, format_table
-    from mmatch.fusion import Fuser
     from mmatch.scene_io import load_scene
     from mmatch.sim.generate import generate
     from mmatch.sim.realism import realism_figures
@@ -51,13 +47,8 @@ def run(args: argparse.Namespace) -> int:
     if done:
         pick = sorted(done, key=lambda r: r["rte_m"])[len(done) // 2]
         scene = load_scene(pick["file"])
-        e, c = scene.ego, scene.cav
-        own, _ = process_view(e.points, e.boxes, e.features, e.camera, e.radar_height, e.stamp, sender="ego")
-        other, _ = process_view(c.points, c.boxes, c.features, c.camera, c.radar_height, c.stamp, sender="cav")
-        res = Fuser().fuse(own, decode(encode(other)))
-        picture = out / "bev.png"
-        draw_bev(scene, res.T_ego_cav, far_side_centres(own), far_side_centres(other),
-                 res.pairs if len(res.pairs) else np.zeros((0, 2), int), picture)
+        picture = draw_bev(scene, np.asarray(pick["T_ego_cav"]), np.asarray(pick["box_pairs"], int),
+                           out / "bev", method="MMatch")[0]
         print(f"bird's-eye picture of {scene.name} (median error scene): {picture}")
     print(f"wrote {out / 'eval.json'}")
     return 0
