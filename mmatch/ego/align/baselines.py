@@ -11,13 +11,13 @@ Every result is projected onto SE(2) (yaw + x, y) against mirror flips; z is the
 height difference. Run with the `none` matcher (they find no pairs).
 
 The libraries are the `baselines` extra and are imported inside the aligners; a missing one
-raises ConfigError with the install line. Open3D runs on one thread (OMP_NUM_THREADS=1 is
-set before its first import unless the caller chose) so its times compare with ours.
+raises ConfigError with the install line. Open3D is held to one thread (its TBB pool,
+`open3d.utility.set_max_threads(1)`, process-wide): its times then compare with ours, and
+its seeded RANSAC gives the same result on every run (with several threads it does not).
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,13 +33,13 @@ EXTRA_MODULES = {"o3d-icp": "open3d", "o3d-fgr": "open3d", "o3d-ransac": "open3d
 
 
 def _open3d():
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
         import open3d as o3d
     except ImportError as exc:
         raise ConfigError(f"the Open3D baselines need open3d ({exc}): {INSTALL_HINT} "
                           "(open3d-cpu; on Debian also apt-get install libusb-1.0-0)") from exc
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    o3d.utility.set_max_threads(1)
     return o3d
 
 
