@@ -141,8 +141,8 @@ class DropCounter:
 #: the encoding each kind of sample carries (docs/formats.md); anything else is plain bytes
 ENCODINGS: dict[str, str] = {
     "shared": "application/vnd.mmatch.shared-frame",
-    "fused": "application/json",
-    "health": "application/json",
+    "fused": "application/vnd.mmatch.signed-message",    # JSON inside a signed envelope (edge/auth.py)
+    "health": "application/vnd.mmatch.signed-message",
 }
 
 

@@ -43,7 +43,7 @@ def test_router_relays_between_clients_with_encodings():
             sub.undeclare()
         assert done.is_set(), got
         assert got["shared"] == ("application/vnd.mmatch.shared-frame", b"MMSF...")
-        assert got["fused"][0] == got["health"][0] == "application/json" == ENCODINGS["fused"]
+        assert got["fused"][0] == got["health"][0] == "application/vnd.mmatch.signed-message" == ENCODINGS["fused"]
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=15)
         assert proc.returncode == 0, err
