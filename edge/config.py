@@ -170,6 +170,10 @@ class LogSection:
     raw: bool = _opt(True, doc="log raw UART bytes / DCA1000 frames")
     raw_floor_mb: float = _opt(2048.0, lo=0.0, doc="below this free disk, raw data stops")
     floor_mb: float = _opt(512.0, lo=0.0, doc="below this free disk, all logging stops")
+    retry_s: float = _opt(30.0, lo=0.0, lo_open=True, hi=3600.0,
+                          doc="a failing log disk is tried again after 1 s, doubling up to this, s")
+    error_interval_s: float = _opt(60.0, lo=0.0, lo_open=True, hi=86400.0,
+                                   doc="while the log disk fails, at most one error line per this, s")
 
 
 @dataclass(frozen=True)

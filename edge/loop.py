@@ -324,7 +324,9 @@ class VehicleLoop:
         if self.identity is not None:
             out["auth"] = self.identity.describe()
         if self.recorder is not None:
-            out["recorder"] = self.recorder.stats()
+            out["recorder"] = rec = self.recorder.stats()
+            for k, v in rec["dropped"].items():
+                drops[f"log_{k}"] = v
         return out
 
     def _status(self) -> None:
@@ -332,6 +334,8 @@ class VehicleLoop:
         links = ""
         if self.node is not None and self.node.links:
             links = " ".join(f"{n}:{'up' if s.up else 'LOST'}" for n, s in self.node.links.items())
+        if h.get("recorder", {}).get("state") == "failing":
+            links = (links + " " if links else "") + f"LOG FAILING: {h['recorder']['error']}"
         text = format_status(h["rates"], {k: v for k, v in h["drops"].items() if v}, links)
         log.info("status: %s", text)
         self.notifier.status(text)

@@ -11,6 +11,12 @@
   counted by reason.
 * Log times come from a strictly increasing ns clock shared by every topic, so file order
   is the order of `write` calls across threads. A writer thread does the file work.
+* A full or failing disk never stops the caller: the recorder (also at start) gives up the
+  file, drops what comes (counted as "disk_error") without touching the disk, and tries one
+  new file after a back-off (1 s doubling to `log.retry_s`); a file that failed before its
+  first message is removed, so a fault makes no new files while it lasts. One error is logged
+  when a fault starts and at most one per `log.error_interval_s` while it lasts; `stats()`
+  says "failing" with the error, and recording resumes by itself when the disk is back.
 """
 
 from __future__ import annotations
@@ -116,20 +122,33 @@ class Recorder:
         self.raw_stopped = False
         self.all_stopped = False
         self._closed = False
+        # disk faults: set by the writer thread, read by the front
+        self.failing = False
+        self.error = ""
+        self._retry_at = 0.0
+        self._backoff = 0.0
+        self._last_error_log = -1e9
+        self._not_recorded_since_log = 0
+        self._file_messages = 0       # messages given to the open file ...
+        self._durable = 0             # ... of which in chunks that reached the OS
+        self._durable_bytes = 0
+        self._file_path: Path | None = None
 
     # ------------------------------------------------------------------ life
     def open(self) -> Recorder:
+        """Start recording; a folder or disk that fails does not raise: the recorder starts
+        failing (stats say so) and retries after its back-off."""
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
+            if self.config_text:
+                stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+                (self.dir / f"{self.prefix}-{stamp}.config.toml").write_text(self.config_text)
+            with self._lock:
+                self._check_disk(force=True)
+            if not self.all_stopped:
+                self._start_file()
         except OSError as exc:
-            raise DeviceError(f"recorder: cannot create log dir {self.dir}: {exc}") from exc
-        if self.config_text:
-            stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-            (self.dir / f"{self.prefix}-{stamp}.config.toml").write_text(self.config_text)
-        with self._lock:
-            self._check_disk(force=True)
-        if not self.all_stopped:
-            self._start_file()  # before the thread: a bad folder fails here, at start
+            self._fault(exc, f"cannot start recording in {self.dir}")
         self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
         self._thread.start()
         return self
@@ -159,25 +178,74 @@ class Recorder:
             try:
                 item = self._queue.get(timeout=min(self.cfg.flush_s, 0.5))
             except queue.Empty:
-                self._flush_if_due()
+                try:
+                    self._flush_if_due()
+                except OSError as exc:
+                    self._fault(exc, f"cannot write {self.files[-1] if self.files else self.dir}")
                 continue
             op = item[0]
             try:
                 if op == "msg":
+                    if self.failing and not self._retry_due():
+                        self._lost()
+                        continue
                     self._write_now(*item[1:])
+                    self._recovered()
                 elif op == "meta":
                     if self._writer is not None:
                         self._writer.add_metadata(item[1], item[2])
                 elif op == "finish":
                     self._finish_file()
                 elif op == "stop":
-                    self._finish_file()
+                    try:
+                        self._finish_file()
+                    except OSError as exc:  # the file keeps what reached the disk
+                        self._fault(exc, "cannot finish the log file")
                     return
                 self._flush_if_due()
-            except OSError as exc:  # disk error: this file is given up, the next write starts anew
-                self.dropped["io_error"] += 1
-                log.error("recorder: %s; closing %s", exc, self.files[-1] if self.files else "?")
-                self._abandon_file()
+            except OSError as exc:  # disk error: the file is given up, a new one after the back-off
+                if op == "msg":
+                    self._lost()
+                self._fault(exc, f"cannot write {self.files[-1] if self.files else self.dir}")
+
+    # ------------------------------------------------------------------ disk faults
+    def _retry_due(self) -> bool:
+        return time.monotonic() >= self._retry_at
+
+    def _lost(self, n: int = 1) -> None:
+        with self._lock:
+            self.dropped["disk_error"] += n
+            self._not_recorded_since_log += n
+
+    def _fault(self, exc: OSError, what: str) -> None:
+        """Give up the file (removed when nothing was recorded in it), back off, log rarely.
+        Messages of the open chunk are lost with it and counted."""
+        if self._file is not None and self._file_messages > self._durable:
+            self.written -= self._file_messages - self._durable
+            self._lost(self._file_messages - self._durable)
+            self._file_messages = self._durable
+        self._abandon_file()
+        now = time.monotonic()
+        self._backoff = min(max(2 * self._backoff, 1.0), self.cfg.retry_s)
+        self._retry_at = now + self._backoff
+        first = not self.failing
+        self.error = f"{what}: {exc.strerror or exc}"
+        self.failing = True
+        if first or now - self._last_error_log >= self.cfg.error_interval_s:
+            with self._lock:
+                lost, self._not_recorded_since_log = self._not_recorded_since_log, 0
+            log.error("recorder: %s; not recording (%d message(s) lost since the last report), "
+                      "next try in %.1f s", self.error, lost, self._backoff)
+            self._last_error_log = now
+
+    def _recovered(self) -> None:
+        if not self.failing:
+            return
+        with self._lock:
+            lost, self._not_recorded_since_log = self._not_recorded_since_log, 0
+        log.warning("recorder: recording again to %s (%d message(s) were not recorded)",
+                    self.files[-1] if self.files else self.dir, lost)
+        self.failing, self.error, self._backoff = False, "", 0.0
 
     def _write_now(self, topic: str, log_ns: int, pub_ns: int, payload: bytes | Callable) -> None:
         if callable(payload):  # a deferred record: encoded here, off the caller's thread
@@ -195,6 +263,8 @@ class Recorder:
                                  data=payload, sequence=self._seq[cid])
         self._seq[cid] += 1
         self.written += 1
+        self._file_messages += 1
+        self._note_durable()
 
     def _flush_if_due(self) -> None:
         """Close the open chunk at least every flush_s: a crash loses at most that much."""
@@ -202,6 +272,13 @@ class Recorder:
         if self._writer is not None and now - self._last_flush >= self.cfg.flush_s:
             self._writer.flush()
             self._last_flush = now
+            self._note_durable()
+
+    def _note_durable(self) -> None:
+        """The file grew: a chunk with every message so far reached the OS."""
+        if self._file is not None and self._file.tell() > self._durable_bytes:
+            self._durable_bytes = self._file.tell()
+            self._durable = self._file_messages
 
     def _new_path(self) -> Path:
         """<prefix>-<UTC yyyymmdd-hhmmss-mmm>-<n>.mcap: names sort in time order; n counts the
@@ -218,8 +295,11 @@ class Recorder:
     def _start_file(self) -> None:
         from mcap.writer import CompressionType, Writer
 
+        self.dir.mkdir(parents=True, exist_ok=True)  # the folder may have gone with the disk
         path = self._new_path()
         self._file = _RawFile(path)
+        self._file_path = path
+        self._file_messages = self._durable = self._durable_bytes = 0
         comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}[self.cfg.compression]
         self._writer = Writer(self._file, chunk_size=int(self.cfg.chunk_kb * 1024), compression=comp)
@@ -253,6 +333,13 @@ class Recorder:
                 self._file.close()
             except OSError:
                 pass
+            if self._file_messages == 0:  # nothing recorded in it: no empty files left behind
+                try:
+                    os.unlink(self._file_path)
+                except OSError:
+                    pass
+                if self.files and self.files[-1] == self._file_path:
+                    self.files.pop()
         self._writer, self._file = None, None
 
     def _maybe_rotate(self) -> None:
@@ -333,6 +420,10 @@ class Recorder:
             if self.raw_stopped and logschema.is_raw(topic):
                 self.dropped["raw_disk_floor"] += 1
                 return False
+            if self.failing and time.monotonic() < self._retry_at:  # backing off: not even queued
+                self.dropped["disk_error"] += 1
+                self._not_recorded_since_log += 1
+                return False
             log_ns = self._next_ns()
             pub_ns = log_ns if stamp is None else max(int(round(stamp * 1e9)), 0)
             try:
@@ -344,6 +435,9 @@ class Recorder:
 
     def stats(self) -> dict[str, Any]:
         with self._lock:
-            return {"written": self.written, "queued": self._queue.qsize(), "files": len(self.files),
+            state = ("closed" if self._closed else "failing" if self.failing
+                     else "below floor" if self.all_stopped else "recording")
+            return {"state": state, "error": self.error, "written": self.written,
+                    "queued": self._queue.qsize(), "files": len(self.files),
                     "dropped": dict(self.dropped), "raw_stopped": self.raw_stopped,
                     "all_stopped": self.all_stopped, "free_mb": round(self._free / MB, 1)}

@@ -318,3 +318,31 @@ def test_a_lagging_ego_still_takes_frames_it_can_pair_with(fleet):
     assert v.open_frame("cav1", late).seq == 1
     with pytest.raises(Rejected, match="stale"):
         v.open_frame("cav1", codec.encode(_frame(seq=2, stamp=NOW - 0.5), s["cav1"]))
+
+
+def test_refused_frames_are_never_logged_at_any_size(fleet):
+    path, s = fleet
+
+    class Log:
+        def __init__(self):
+            self.topics = []
+
+        def write(self, topic, data, stamp=None):
+            self.topics.append((topic, data))
+
+    clock = Clock()
+    cfg = config.from_dict({"vehicle": {"id": "ego1", "role": "ego"}, "ego": {"cavs": ["cav1"]}})
+    rec = Log()
+    node = Node(cfg, FAKE, default_camera(), 0.7, recorder=rec,
+                verifier=auth.verifier_for(cfg, TrustStore(path / "trust.toml"), clock=clock))
+    big = _frame(seq=1, stamp=NOW - 5.0, vehicle_points=np.zeros((2000, 5), np.float32),
+                 vehicle_index=np.zeros(2000, np.int32))
+    for data in (codec.encode(big, s["cav1"]),                                  # stale, 18 KB
+                 codec.encode(_frame(seq=2, stamp=NOW - 5.0), s["cav1"]),       # stale, small
+                 codec.encode(_frame(seq=3, stamp=NOW + 1.0), s["cav1"]),       # future
+                 codec.encode(_frame(seq=4), s["mallory"])):                    # forged
+        with pytest.raises(Rejected):
+            node.on_shared("cav1", data)
+    assert rec.topics == []
+    node.on_shared("cav1", codec.encode(_frame(seq=5), s["cav1"]))
+    assert rec.topics and all(t.startswith("/shared/rx/cav1") for t, _ in rec.topics)

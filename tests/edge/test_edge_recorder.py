@@ -168,15 +168,20 @@ def test_sigkilled_writer_leaves_a_readable_file(tmp_path):
     assert len(got) >= last - 40
 
 
-def test_disk_error_costs_the_file_not_the_recorder(tmp_path, monkeypatch):
+def _wait(cond, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while not cond() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return cond()
+
+
+def test_disk_error_costs_the_file_then_recording_resumes_after_the_backoff(tmp_path, monkeypatch):
     from mmatch.edge import recorder as recmod
 
-    with Recorder(_cfg(tmp_path, chunk_kb=1.0)) as rec:
+    with Recorder(_cfg(tmp_path, chunk_kb=1.0, retry_s=0.3)) as rec:
         for i in range(20):
             rec.write(logschema.FUSED, {"i": i, "pad": "z" * 100})
-        deadline = time.monotonic() + 5
-        while rec.written < 20 and time.monotonic() < deadline:
-            time.sleep(0.01)
+        assert _wait(lambda: rec.written >= 20)
         real_write = recmod._RawFile.write
         calls = {"n": 0}
 
@@ -187,13 +192,82 @@ def test_disk_error_costs_the_file_not_the_recorder(tmp_path, monkeypatch):
             return real_write(self, data)
 
         monkeypatch.setattr(recmod._RawFile, "write", failing_write)
-        for i in range(20, 60):
+        for i in range(20, 40):                      # the error, then the back-off drops
             rec.write(logschema.FUSED, {"i": i, "pad": "z" * 100})
-    assert rec.dropped.get("io_error") == 1
+        assert _wait(lambda: rec.failing) and rec.stats()["state"] == "failing"
+        time.sleep(1.1)                              # the first back-off is 1 s (capped by retry_s)
+        for i in range(40, 60):
+            rec.write(logschema.FUSED, {"i": i, "pad": "z" * 100})
+        assert _wait(lambda: not rec.failing)
     assert len(rec.files) == 2
     first, second = ([json.loads(m.data)["i"] for m in logreader.read_messages(f)] for f in rec.files)
     assert first == list(range(len(first))) and len(first) >= 5  # its complete chunks survive
-    assert second[-1] == 59 and len(second) >= 35  # recording went on in a new file
+    assert second[-1] == 59 and len(second) >= 15                 # recording went on in a new file
+    lost = rec.dropped["disk_error"]
+    assert lost >= 1 and len(first) + len(second) + lost == 60     # every message counted
+
+
+def test_disk_full_mid_run_no_file_storm_one_error_then_resume(tmp_path, monkeypatch, caplog):
+    """ENOSPC on every write for 2 s at 50 messages/s, retries every 0.3 s: no new files
+    stay, one error line, every lost message counted; then space returns."""
+    import errno
+    import logging
+
+    from mmatch.edge import recorder as recmod
+
+    real_write = recmod._RawFile.write
+    full = {"on": False}
+
+    def write(self, data):
+        if full["on"]:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(self, data)
+
+    monkeypatch.setattr(recmod._RawFile, "write", write)
+    caplog.set_level(logging.INFO, logger="mmatch.edge.recorder")
+    logs = tmp_path / "logs"
+    with Recorder(_cfg(tmp_path, chunk_kb=1.0, flush_s=0.1, retry_s=0.3, error_interval_s=30.0)) as rec:
+        for i in range(20):
+            rec.write(logschema.FUSED, {"i": i, "pad": "z" * 100})
+        assert _wait(lambda: rec.written >= 20)
+        full["on"] = True
+        mcaps_seen = set()
+        for i in range(20, 120):
+            rec.write(logschema.FUSED, {"i": i, "pad": "z" * 100})
+            mcaps_seen |= {p.name for p in logs.glob("*.mcap")}
+            time.sleep(0.02)
+        assert rec.stats()["state"] == "failing" and "No space left" in rec.stats()["error"]
+        files_while_full = {p.name for p in logs.glob("*.mcap")}
+        full["on"] = False
+        time.sleep(0.4)
+        for i in range(120, 140):
+            rec.write(logschema.FUSED, {"i": i, "pad": "z" * 100})
+            time.sleep(0.02)
+        assert _wait(lambda: rec.stats()["state"] == "recording")
+    errors = [r for r in caplog.records if r.levelno >= logging.ERROR]
+    assert len(errors) == 1, [r.getMessage() for r in errors]
+    assert any("recording again" in r.getMessage() for r in caplog.records)
+    assert len(files_while_full) == 1                  # only the file that was open when it filled
+    assert len(mcaps_seen - files_while_full) <= 1     # a retry's file is gone as soon as it fails
+    got = [json.loads(m.data)["i"] for f in sorted(logs.glob("*.mcap")) for m in logreader.read_messages(f)]
+    assert len(rec.files) == 2 and got[-1] == 139 and set(range(124, 140)) <= set(got)
+    assert len(got) + rec.dropped["disk_error"] == 140
+
+
+def test_an_unusable_log_folder_at_start_is_not_fatal_and_recording_starts_when_it_is_back(tmp_path):
+    logs = tmp_path / "logs"
+    logs.write_text("a file where the folder should be")     # mkdir fails, as on a dead disk
+    with Recorder(_cfg(tmp_path, retry_s=0.3), config_text="x = 1\n") as rec:
+        assert rec.stats()["state"] == "failing" and str(logs) in rec.stats()["error"]
+        assert rec.write(logschema.FUSED, {"i": 0}) is False
+        logs.unlink()
+        time.sleep(1.1)
+        for i in range(1, 11):
+            rec.write(logschema.FUSED, {"i": i})
+            time.sleep(0.01)
+        assert _wait(lambda: rec.stats()["state"] == "recording")
+    got = [json.loads(m.data)["i"] for m in logreader.read_messages(logs)]
+    assert got and got[-1] == 10 and rec.dropped["disk_error"] >= 1
 
 
 def test_deferred_records_keep_call_order_and_a_failing_one_costs_only_itself(tmp_path):
