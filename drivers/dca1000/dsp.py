@@ -2,8 +2,11 @@
 
 Chain (per frame): range FFT with window -> optional static clutter removal (subtract the
 window-weighted mean over chirps) -> Doppler FFT with window -> non-coherent sum over virtual
-channels -> 2D CFAR (CA or OS) with peak grouping (local maximum in 3 x 3 cells, Doppler
-cyclic) -> per detection: TDM-MIMO Doppler phase compensation, channel phase calibration,
+channels -> 2D CFAR (CA over the ring or its smaller / greater range half as cfarCfg averageMode
+says, or OS) with peak grouping (local maximum in 3 x 3 cells, Doppler cyclic; a cell whose
+channel vector points elsewhere than its stronger neighbour's is a target of its own, one that
+matches a far stronger cell's in its CFAR window a sidelobe) -> per detection: TDM-MIMO Doppler
+phase compensation (sub-bin Doppler), channel phase calibration,
 azimuth FFT over the horizontal virtual array, elevation from the raised channels -> points
 x, y, z, doppler, snr.
 
@@ -30,6 +33,23 @@ from .layout import FrameGeometry
 
 log = logging.getLogger(__name__)
 
+_GROUP_MARGIN = 2.0
+"""A cell beside a stronger one is its own target only if every neighbour, projected on the
+cell's channel vector, is at least this factor (3 dB) weaker (a strong target half a bin off the
+grid spreads evenly over 2 x 2 cells: those are one target)."""
+
+_SIDELOBE_RATIO = 10 ** (25 / 10)
+"""A detection is a sidelobe of a cell in its CFAR window's range row or Doppler column whose
+power along the detection's channel vector is more than this (25 dB; Hann sidelobes are 31 dB
+down) above the detection's."""
+
+_NB = np.array([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if a or b])
+_NB_D, _NB_R = _NB[:, 0], _NB[:, 1]  # the 8 neighbours (Doppler, range offsets)
+
+
+AVERAGE_MODES = ("ca", "cago", "caso")
+"""CA-CFAR averaging by cfarCfg averageMode 0, 1, 2."""
+
 
 @dataclass(frozen=True)
 class DspConfig:
@@ -38,6 +58,14 @@ class DspConfig:
     guard/train: CFAR guard and training cells on each side, (range, doppler).
     threshold_db: a cell is detected when its power exceeds the noise estimate by this much;
         the noise estimate is the training-cell mean (CA) or the `os_rank` quantile (OS).
+    average: how CA combines the training ring's nearer-range and farther-range halves (cfarCfg
+        averageMode of the range direction): "ca" the whole ring, "cago" the greater half, "caso"
+        the smaller half (TI's vehicle cfgs: a strong target on one side in range, e.g. a nearer
+        roadside post in the same Doppler bin, then does not mask a weaker one).
+    peak_grouping: keep only cells that are the local maximum of their 3 x 3 neighbourhood; with
+        `signature_grouping`, a cell that is not is still kept when its neighbours, projected on
+        its own spatial signature (channel vector), are all weaker: a target at another angle
+        beside a stronger one, not the stronger one's leakage.
     min_range_m / max_range_m: detections outside are ignored (None = the cfg's max range).
     angle_fft: azimuth FFT size; max_points: keep the strongest points of a frame.
     range_bias_m, channel_phase: calibration of compRangeBiasAndRxChanPhase (channel_phase:
@@ -51,11 +79,13 @@ class DspConfig:
     window: str = "hann"
     clutter_removal: bool = False
     cfar: str = "ca"
+    average: str = "ca"
     guard: tuple[int, int] = (4, 2)
     train: tuple[int, int] = (8, 4)
     threshold_db: float = 15.0
     os_rank: float = 0.75
     peak_grouping: bool = True
+    signature_grouping: bool = True
     min_range_m: float = 0.3
     max_range_m: float | None = None
     angle_fft: int = 256
@@ -69,6 +99,8 @@ class DspConfig:
     def __post_init__(self) -> None:
         if self.cfar not in ("ca", "os"):
             raise ConfigError(f"cfar must be 'ca' or 'os', got {self.cfar!r}")
+        if self.average not in AVERAGE_MODES:
+            raise ConfigError(f"average must be one of {AVERAGE_MODES}, got {self.average!r}")
         if not 0 < self.os_rank < 1:
             raise ConfigError("os_rank must be in (0, 1)")
         if min(self.guard) < 0 or min(self.train) < 1:
@@ -89,11 +121,17 @@ class DspConfig:
             if cmd == "cfarCfg" and len(a) in (8, 9):
                 if len(a) == 9:
                     a = a[1:]  # drop subFrameIdx (SDK 3.x)
-                direction, win, grd, thr = int(a[0]), int(a[2]), int(a[3]), a[6]
+                direction, mode, win, grd, thr = int(a[0]), int(a[1]), int(a[2]), int(a[3]), a[6]
                 if direction in (0, 1):
                     train[direction], guard[direction] = max(1, win), max(0, grd)
                     if direction == 0:
                         kw["threshold_db"] = thr
+                        if not 0 <= mode < len(AVERAGE_MODES):
+                            raise ConfigError(
+                                f"{cfg.path}:{lineno}: cfarCfg averageMode {mode}: want 0 (CA), "
+                                "1 (CAGO) or 2 (CASO)"
+                            )
+                        kw["average"] = AVERAGE_MODES[mode]
                     kw["peak_grouping"] = bool(a[7])
             elif cmd == "multiObjBeamForming" and len(a) in (2, 3):
                 enabled, thr = a[-2], a[-1]
@@ -213,6 +251,12 @@ class RadarDsp:
         self.ring_r = dr[ring]
         self.outer = (2 * (gd + td) + 1, 2 * (gr + tr) + 1)
         self.inner = (2 * gd + 1, 2 * gr + 1)
+        self.half_cells = self.outer[0] * (gr + tr + 1) - self.inner[0] * (gr + 1)
+        # the CFAR window's range row and Doppler column beyond the 3 x 3 block (sidelobe test)
+        wr = np.array([o for o in range(-(gr + tr), gr + tr + 1) if abs(o) > 1])
+        wd = np.array([o for o in range(-(gd + td), gd + td + 1) if abs(o) > 1])
+        self.cross_d = np.concatenate([np.zeros(len(wr), int), wd])
+        self.cross_r = np.concatenate([wr, np.zeros(len(wd), int)])
         self.thr = 10 ** (config.threshold_db / 10)
         self.os_k = int(config.os_rank * (len(self.ring_d) - 1))
 
@@ -241,11 +285,30 @@ class RadarDsp:
         return p[:, 0::2] + p[:, 1::2]
 
     def ca_noise(self, power: np.ndarray) -> np.ndarray:
-        """CA-CFAR noise: mean of the training ring around every cell (Doppler cyclic)."""
+        """CA-CFAR noise (Doppler cyclic, range edges replicated): mean of the training ring around
+        every cell ("ca"), or the greater / smaller ("cago" / "caso") of the means of its
+        nearer-range half (range offsets -(guard+train)..0) and farther-range half (0..+)."""
         mode = ("wrap", "nearest")
-        so = ndimage.uniform_filter(power, self.outer, mode=mode) * (self.outer[0] * self.outer[1])
-        si = ndimage.uniform_filter(power, self.inner, mode=mode) * (self.inner[0] * self.inner[1])
-        return np.maximum(so - si, 0) / len(self.ring_d)
+        (od, orr), (idd, ir) = self.outer, self.inner
+        if self.config.average == "ca":
+            so = ndimage.uniform_filter(power, self.outer, mode=mode) * (od * orr)
+            si = ndimage.uniform_filter(power, self.inner, mode=mode) * (idd * ir)
+            return np.maximum(so - si, 0) / len(self.ring_d)
+        # box sums over Doppler first (shared), then over one-sided range windows
+        dout = ndimage.uniform_filter1d(power, od, axis=0, mode="wrap")
+        din = ndimage.uniform_filter1d(power, idd, axis=0, mode="wrap")
+        n_o, n_i = orr // 2 + 1, ir // 2 + 1  # one-sided window lengths, centre included
+
+        def half(origin_o: int, origin_i: int) -> np.ndarray:
+            so = ndimage.uniform_filter1d(dout, n_o, axis=1, mode="nearest", origin=origin_o)
+            si = ndimage.uniform_filter1d(din, n_i, axis=1, mode="nearest", origin=origin_i)
+            return np.maximum(so * (od * n_o) - si * (idd * n_i), 0)
+
+        # origin (n - 1) // 2 puts the window on [r - n + 1, r], -(n // 2) on [r, r + n - 1]
+        near = half((n_o - 1) // 2, (n_i - 1) // 2)
+        far = half(-(n_o // 2), -(n_i // 2))
+        pick = np.minimum if self.config.average == "caso" else np.maximum
+        return pick(near, far) / self.half_cells
 
     def process(self, cube: np.ndarray, keep_maps: bool = False) -> DspResult:
         """Points of one frame from a complex (loops, virtual, samples) ADC cube."""
@@ -263,7 +326,7 @@ class RadarDsp:
         cand[:, self.r_hi :] = False
         d, r = np.nonzero(cand)
         if cfg.peak_grouping and len(d):
-            d, r = self._local_max(power, d, r)
+            d, r = self._local_max(power, spec if cfg.signature_grouping else None, d, r)
         if cfg.cfar == "os" and len(d):
             d, r, nz = self._os_filter(power, d, r)
         else:
@@ -285,18 +348,43 @@ class RadarDsp:
             noise if keep_maps else None,
         )
 
-    @staticmethod
-    def _local_max(power, d, r):
-        """Keep cells that are >= their 8 neighbours (Doppler cyclic, range clipped)."""
+    def _local_max(self, power, spec, d, r):
+        """Peak grouping. Keep cells that are >= their 8 neighbours (Doppler cyclic, range clipped).
+
+        With spec (D, V, R) (signature grouping), the channel vector y of a cell tells a target from
+        another target's leakage, which has that target's vector: with p(n -> c) = |y_c^H y_n|^2 /
+        |y_c|^2 the power of cell n along c's vector (= P_n for leakage, P_n rho^2 for a target
+        at another angle, rho < 1), a cell that is not a local maximum is kept when every
+        neighbour has p(n -> c) <= P_c / _GROUP_MARGIN: a weaker target at another angle beside a
+        stronger one. And a cell is dropped as a sidelobe when a cell of its range row or Doppler
+        column within the CFAR window has p(n -> c) > _SIDELOBE_RATIO * P_c: a strong target's
+        Hann sidelobes (-31 dB) pass a CFAR that averages the side away from it (CASO)."""
         D, R = power.shape
+        nd = (d[:, None] + _NB_D[None, :]) % D  # (K, 8)
+        nr = np.clip(r[:, None] + _NB_R[None, :], 0, R - 1)
         p0 = power[d, r]
-        keep = np.ones(len(d), dtype=bool)
-        for od in (-1, 0, 1):
-            dn = (d + od) % D
-            for orr in (-1, 0, 1):
-                if od or orr:
-                    keep &= p0 >= power[dn, np.clip(r + orr, 0, R - 1)]
-        return d[keep], r[keep]
+        keep = (p0[:, None] >= power[nd, nr]).all(axis=1)
+        if spec is None:
+            return d[keep], r[keep]
+        lose = np.flatnonzero(~keep)
+        if len(lose):
+            keep[lose] = self._along(spec, d[lose], r[lose], nd[lose], nr[lose], _GROUP_MARGIN)
+        d, r = d[keep], r[keep]
+        if len(d):
+            cd = (d[:, None] + self.cross_d[None, :]) % D
+            cr = np.clip(r[:, None] + self.cross_r[None, :], 0, R - 1)
+            ok = self._along(spec, d, r, cd, cr, 1.0 / _SIDELOBE_RATIO)
+            d, r = d[ok], r[ok]
+        return d, r
+
+    @staticmethod
+    def _along(spec, d, r, nd, nr, factor: float) -> np.ndarray:
+        """True where every neighbour (nd, nr) (K, M) has factor * |y_c^H y_n|^2 <= |y_c|^4."""
+        yc = spec[d, :, r]  # (K, V)
+        yn = spec[nd, :, nr]  # (K, M, V)
+        along = np.abs(np.einsum("kv,kmv->km", np.conj(yc), yn)) ** 2
+        own = np.einsum("kv,kv->k", np.conj(yc), yc).real
+        return (factor * along <= (own * own)[:, None]).all(axis=1)
 
     def _os_filter(self, power, d, r):
         """Ordered-statistic CFAR at candidate cells: noise = os_rank quantile of the ring."""

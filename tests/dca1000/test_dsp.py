@@ -114,18 +114,22 @@ def test_two_targets_two_and_a_half_cells_apart_are_two_points(radar_cfg, dsp_se
             assert dr <= 1.0 and dv <= 1.0 and daz <= 2.0
 
 
-def test_os_cfar_sees_a_weak_target_beside_a_strong_one(radar_cfg):
-    """Six range bins from a strong target, the weak one sits in the CA training window."""
+def test_os_and_caso_cfar_see_a_weak_target_beside_a_strong_one(radar_cfg):
+    """Six range bins from a strong target, the weak one sits in the CA training window: the
+    whole-ring mean (averageMode 0) masks it; the cfg's smaller-half mean (CASO) and OS do not."""
     c = radar_cfg.chirp
     strong = Target(30.0, 2.0, 0.0, 0.0, 25.0)
     weak = Target(30.0 + 6 * c.range_resolution_m, 2.0, 20.0, 0.0, -5.0)
-    geom, ca = make_dsp(radar_cfg, cfar="ca")
+    geom, ca = make_dsp(radar_cfg, cfar="ca", average="ca")
+    _, caso = make_dsp(radar_cfg, cfar="ca")
     _, os_ = make_dsp(radar_cfg, cfar="os")
+    assert caso.config.average == "caso"  # cfarCfg -1 0 2 ...: averageMode 2
     cube = synth_cube(c, geom, [strong, weak])
-    pts_os = os_.process(cube).points
     pts_ca = ca.process(cube).points
-    assert len(pts_os) == 2 and _match(pts_os, weak, c)[0] <= 1.0
     assert len(pts_ca) == 1 and _match(pts_ca, strong, c)[0] <= 1.0
+    for dsp in (caso, os_):
+        pts = dsp.process(cube).points
+        assert len(pts) == 2 and _match(pts, weak, c)[0] <= 1.0
 
 
 def test_clutter_removal_drops_static_targets(radar_cfg):
@@ -152,6 +156,7 @@ def test_noise_alone_gives_almost_no_points(dsp_setup):
 def test_config_from_cfg(radar_cfg):
     d = DspConfig.from_cfg(radar_cfg)
     assert d.guard == (4, 2) and d.train == (8, 4) and d.threshold_db == 15.0
+    assert d.average == "caso"
     assert d.peak_grouping and not d.clutter_removal
     assert DspConfig.from_cfg(radar_cfg, cfar="os").cfar == "os"
 
