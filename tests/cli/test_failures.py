@@ -53,7 +53,8 @@ def test_every_silent_failure_exits_non_zero_with_a_message(tmp_path, capsys):
 def test_a_wrong_option_shows_the_subcommands_usage(capsys):
     required = {"sim": ["--out", "x"], "eval": ["x"], "egomotion": ["x"], "demo": [], "bench": [],
                 "parse-uart": ["x"], "dsp": ["--cfg", "x", "--adc", "y"], "radar-info": ["--cfg", "x"],
-                "run": ["-c", "x"], "replay": ["x"], "config": ["--list"], "router": []}
+                "run": ["-c", "x"], "replay": ["x"], "config": ["--list"], "router": [],
+                "export": ["--ros2", "x", "y"]}
     for cmd, rest in required.items():
         rc, err = run_cli([cmd, *rest, "--no-such-option"], capsys)
         assert rc == 2

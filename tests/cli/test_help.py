@@ -31,7 +31,7 @@ def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentP
 
 def test_every_default_is_shown_in_help():
     subs = _subparsers(build_parser())
-    assert {"sim", "eval", "demo", "run", "replay", "config", "router"} <= set(subs)
+    assert {"sim", "eval", "demo", "run", "replay", "config", "router", "export"} <= set(subs)
     for name, p in subs.items():
         text = " ".join(p.format_help().split())
         for action in p._actions:

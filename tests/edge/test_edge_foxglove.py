@@ -153,3 +153,81 @@ def test_the_new_logs_replay_to_the_same_fused_results(sim_logs):
     assert r.returncode == 0, r.stderr[-3000:]
     cmp = json.loads(r.stdout)["compare"]
     assert cmp["recorded"] == cmp["same"] > 100 and not cmp["differ"] and not cmp["missing"]
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_ros2_export_reads_back_with_rosbags(sim_logs, tmp_path, storage):
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from mmatch.edge.cli import main
+
+    bag = tmp_path / "bag"
+    assert main(["export", "--ros2", str(sim_logs["ego"]), str(bag), "--storage", storage]) == 0
+    _, fox = read_log(sim_logs["ego"])
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    got: dict[str, list] = {}
+    with Reader(bag) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        for conn, _t, raw in reader.messages():
+            got.setdefault(conn.topic, []).append(ts.deserialize_cdr(raw, conn.msgtype))
+    assert types["/radar/points"] == types["/shared/rx/cav1/points"] == "sensor_msgs/msg/PointCloud2"
+    assert types["/tf"] == types["/tf_static"] == "tf2_msgs/msg/TFMessage"
+    assert types["/fused/objects"] == "visualization_msgs/msg/MarkerArray"
+    assert types["/fused"] == "std_msgs/msg/String" and "/raw/uart" not in types
+    # points: every cloud, byte for byte, in its vehicle's frame
+    assert len(got["/radar/points"]) == len(fox["/radar/points"])
+    for ros, pb in zip(got["/radar/points"], fox["/radar/points"]):
+        assert ros.header.frame_id == "ego1/radar" and ros.point_step == 20
+        assert [f.name for f in ros.fields] == ["x", "y", "z", "doppler", "snr"]
+        assert all(f.datatype == 7 for f in ros.fields)  # PointField.FLOAT32
+        assert ros.width == len(pb.data) // 20 and bytes(ros.data) == pb.data
+    assert {m.header.frame_id for m in got["/shared/rx/cav1/points"]} == {"cav1/radar"}
+    # transforms: the same T_ego_cav
+    ros_tf = [t for m in got["/tf"] for t in m.transforms]
+    fox_tf = [t for m in fox["/tf"] for t in m.transforms]
+    assert len(ros_tf) == len(fox_tf) > 20
+    for a, b in zip(ros_tf, fox_tf):
+        assert (a.header.frame_id, a.child_frame_id) == ("ego1/radar", "cav1/radar")
+        assert (a.transform.translation.x, a.transform.translation.y) == (b.translation.x, b.translation.y)
+        assert (a.transform.rotation.z, a.transform.rotation.w) == (b.rotation.z, b.rotation.w)
+        assert (a.header.stamp.sec, a.header.stamp.nanosec) == (b.timestamp.seconds, b.timestamp.nanos)
+    # REP-103 frames: <v>/radar_flu -> <v>/radar turns MMatch's (2 right, 10 ahead) into (10 ahead, 2 right = -2 left)
+    static = {t.child_frame_id: t for t in got["/tf_static"][-1].transforms}
+    assert set(static) == {"ego1/radar", "cav1/radar"}
+    q = static["cav1/radar"].transform.rotation
+    assert static["cav1/radar"].header.frame_id == "cav1/radar_flu"
+    x, y, z, w = q.x, q.y, q.z, q.w
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w)], [2 * (x * y + z * w), 1 - 2 * (x * x + z * z)]])
+    np.testing.assert_allclose(R @ [2.0, 10.0], [10.0, -2.0], atol=1e-12)
+    # fused objects: a DELETEALL, then one cube per object, coloured by source
+    fused = [json.loads(m.data) for m in got["/fused"]]
+    assert len(got["/fused/objects"]) == len(fused)
+    for arr, msg in zip(got["/fused/objects"], fused):
+        assert arr.markers[0].action == 3  # DELETEALL
+        cubes = [mk for mk in arr.markers if mk.type == 1 and mk.action == 0]
+        assert len(cubes) == len(msg["objects"])
+        assert all(mk.header.frame_id == "ego1/radar" for mk in cubes)
+        for mk, (ox, oy, _s, _i) in zip(cubes, msg["objects"]):
+            assert (mk.pose.position.x, mk.pose.position.y) == pytest.approx((ox, oy), abs=1e-6)
+
+
+def test_export_refuses_what_it_cannot_do(sim_logs, tmp_path, capsys):
+    from mmatch.edge.cli import main
+
+    not_a_log = tmp_path / "notes.txt"
+    not_a_log.write_text("hello")
+    assert main(["export", "--ros2", str(not_a_log), str(tmp_path / "b1")]) == 2
+    assert "not an MCAP file" in capsys.readouterr().err
+    (tmp_path / "b2").mkdir()
+    assert main(["export", "--ros2", str(sim_logs["ego"]), str(tmp_path / "b2")]) == 2
+    assert "exists" in capsys.readouterr().err
+
+
+def test_export_without_rosbags_says_how_to_install(sim_logs, tmp_path, capsys, monkeypatch):
+    from mmatch.edge.cli import main
+
+    monkeypatch.setitem(sys.modules, "rosbags.typesys", None)  # as if the extra were not installed
+    assert main(["export", "--ros2", str(sim_logs["ego"]), str(tmp_path / "bag")]) == 2
+    assert "pip install 'mmatch[ros2]'" in capsys.readouterr().err
+    assert not (tmp_path / "bag").exists()
