@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 from pathlib import Path
 
@@ -44,7 +45,9 @@ def run(args: argparse.Namespace) -> int:
     (out / "config.json").write_text(json.dumps({"n": args.n, "seed": args.seed, "mode": "mixed",
                                                  "eval": rep["config"]}, indent=2))
     done = [r for r in results if r.get("rte_m") is not None]
-    if done:
+    if done and importlib.util.find_spec("matplotlib") is None:  # a plain `pip install mmatch`
+        print("bird's-eye picture skipped: it needs matplotlib, pip install 'mmatch[plots]'")
+    elif done:
         pick = sorted(done, key=lambda r: r["rte_m"])[len(done) // 2]
         scene = load_scene(pick["file"])
         picture = draw_bev(scene, np.asarray(pick["T_ego_cav"]), np.asarray(pick["box_pairs"], int),

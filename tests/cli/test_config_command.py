@@ -64,3 +64,14 @@ def test_config_reference_covers_every_key():
         for key in values:
             row = next(line for line in text.splitlines() if line.startswith(f"| `{key}` |"))
             assert row.rstrip().endswith("|") and not row.endswith("|  |"), f"{section}.{key} has no meaning"
+
+
+def test_demo_without_the_plots_extra_still_works(tmp_path, monkeypatch, capsys):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "matplotlib" else real(name, *a))
+    assert main(["demo", "--out", str(tmp_path / "d"), "--n", "2", "--jobs", "1"]) == 0
+    assert "picture skipped: it needs matplotlib, pip install 'mmatch[plots]'" in capsys.readouterr().out
+    assert (tmp_path / "d/eval.json").exists() and not list((tmp_path / "d").glob("bev*"))
