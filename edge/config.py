@@ -115,6 +115,13 @@ class ZenohSection:
     gossip: bool = _opt(False, doc="learn peers from other peers")
     shared_memory: bool = _opt(False, doc="Zenoh shared-memory transport between processes of one computer")
     config_file: str = _opt("", doc="a zenoh JSON5 file; the keys above are applied on top")
+    tls_root_ca: str = _opt("", doc="mutual TLS: the fleet CA certificate (PEM, `mmatch keys --tls`); "
+                                    "with it every endpoint must be tls/HOST:PORT")
+    tls_certificate: str = _opt("", doc="mutual TLS: this vehicle's certificate (PEM; its common name is the "
+                                        "vehicle id the access control matches)")
+    tls_private_key: str = _opt("", doc="mutual TLS: this vehicle's TLS private key (PEM)")
+    tls_verify_name: bool = _opt(True, doc="check the peer's certificate names the host connected to "
+                                           "(off for vehicle-to-vehicle links by IP: the CA still vouches)")
 
 
 @dataclass(frozen=True)
@@ -310,10 +317,17 @@ def _cross_checks(cfg: VehicleConfig) -> None:
         raise ConfigError(f"camera.calibration: required when camera.source = \"{cfg.camera.source}\"")
     if cfg.zenoh.mode == "client" and not cfg.zenoh.connect:
         raise ConfigError("zenoh.connect: client mode needs at least one router endpoint")
+    z = cfg.zenoh
+    tls = [k for k in ("tls_root_ca", "tls_certificate", "tls_private_key") if getattr(z, k)]
+    if tls and len(tls) != 3:
+        missing = next(k for k in ("tls_root_ca", "tls_certificate", "tls_private_key") if k not in tls)
+        raise ConfigError(f"zenoh.{missing}: mutual TLS needs the CA, the certificate and the key")
     for key in ("listen", "connect"):
         for i, ep in enumerate(getattr(cfg.zenoh, key)):
             if "/" not in ep:
                 raise ConfigError(f"zenoh.{key}[{i}]: {ep!r} is not an endpoint like tcp/127.0.0.1:7447")
+            if tls and not ep.startswith("tls/"):
+                raise ConfigError(f"zenoh.{key}[{i}]: {ep!r} with mutual TLS configured: use tls/HOST:PORT")
     if cfg.log.floor_mb > cfg.log.raw_floor_mb:
         raise ConfigError("log.floor_mb: must be <= log.raw_floor_mb (raw data stops first)")
     if cfg.auth.behind_s < cfg.ego.pair_tolerance_s:

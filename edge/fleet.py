@@ -10,7 +10,12 @@ Layout of a fleet folder (private keys mode 0600, the folder 0700):
     tls/ca.key          the CA's private key: keep it off the vehicles
     tls/<id>.pem, tls/<id>.key.pem   a vehicle's (or router's) certificate and TLS key;
                         the certificate's common name is the id, which Zenoh's access control
-                        matches (cfg/zenoh/)
+                        matches
+    zenoh/acl.json5     Zenoh access control for the fleet: every vehicle may subscribe to
+                        mmatch/v1/**, and publish only under mmatch/v1/<its id>/**; a router
+                        may relay everything (a vehicle peer's zenoh.config_file)
+    zenoh/router.json5  a router with mutual TLS and that access control
+                        (`mmatch router --config`, or zenohd -c)
 
 Copy to a vehicle only its own <id>.key, tls/<id>.pem, tls/<id>.key.pem, and trust.toml and
 tls/ca.pem.
@@ -20,11 +25,12 @@ from __future__ import annotations
 
 import datetime
 import ipaddress
+import json
 import os
 from pathlib import Path
 
 from mmatch.edge import auth
-from mmatch.edge.keys import _check_vehicle
+from mmatch.edge.keys import PREFIX, _check_vehicle
 from mmatch.errors import ConfigError
 
 
@@ -74,8 +80,69 @@ def make_fleet(out: str | Path, vehicles: list[str], *, rotate: list[str] = (), 
     auth.write_trust(trust_path, trust)
     done.append(f"trust file {trust_path}: {len(trust)} vehicle(s)")
     if tls:
-        done += make_tls(out / "tls", sorted(set(vehicles) | set(trust)), routers=routers, days=days)
+        names = sorted(set(vehicles) | set(trust))
+        done += make_tls(out / "tls", names, routers=routers, days=days)
+        done += write_zenoh_configs(out, names, routers)
     return done
+
+
+def access_control(vehicles: list[str], routers: list[str] = ()) -> dict:
+    """Zenoh's access_control block (zenoh 1.x): deny by default; every fleet member may
+    declare subscribers and receive samples under mmatch/v1/**; a vehicle may put only under
+    mmatch/v1/<its id>/**; a router (it forwards other vehicles' samples) under mmatch/v1/**.
+    Subjects are matched by the TLS certificate's common name."""
+    everything = [f"{PREFIX}/**"]
+    rules = [
+        {"id": "subscribe", "messages": ["declare_subscriber"], "flows": ["ingress", "egress"],
+         "permission": "allow", "key_exprs": everything},
+        {"id": "deliver", "messages": ["put"], "flows": ["egress"], "permission": "allow",
+         "key_exprs": everything},
+        {"id": "relay", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
+         "key_exprs": everything},
+    ]
+    subjects = [{"id": f"vehicle {v}", "cert_common_names": [v]} for v in vehicles]
+    subjects += [{"id": f"router {r}", "cert_common_names": [r]} for r in routers]
+    policies = [{"id": "fleet", "rules": ["subscribe", "deliver"], "subjects": [s["id"] for s in subjects]}]
+    for v in vehicles:
+        rules.append({"id": f"publish {v}", "messages": ["put"], "flows": ["ingress"],
+                      "permission": "allow", "key_exprs": [f"{PREFIX}/{v}/**"]})
+        policies.append({"id": f"own keys {v}", "rules": [f"publish {v}"], "subjects": [f"vehicle {v}"]})
+    if routers:
+        policies.append({"id": "routers relay", "rules": ["relay"],
+                         "subjects": [f"router {r}" for r in routers]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def write_zenoh_configs(out: Path, vehicles: list[str], routers: list[str]) -> list[str]:
+    """zenoh/acl.json5 (access control only) and zenoh/router.json5 (a TLS router with it)."""
+    folder = out / "zenoh"
+    folder.mkdir(parents=True, exist_ok=True)
+    acl = access_control(vehicles, routers)
+    (folder / "acl.json5").write_text(
+        "// Zenoh access control of this fleet (`mmatch keys`): a vehicle publishes only under its\n"
+        "// own key expressions. Use as zenoh.config_file of a vehicle peer.\n"
+        + json.dumps({"access_control": acl}, indent=2) + "\n")
+    tls = (out / "tls").resolve()
+    name = routers[0] if routers else "router"
+    router = {
+        "mode": "router",
+        "listen": {"endpoints": [f"tls/{name}:7447"]},
+        "connect": {"endpoints": []},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+        "transport": {"shared_memory": {"enabled": False},
+                      "link": {"tls": {"root_ca_certificate": str(tls / "ca.pem"), "enable_mtls": True,
+                                       "listen_certificate": str(tls / f"{name}.pem"),
+                                       "listen_private_key": str(tls / f"{name}.key.pem"),
+                                       "connect_certificate": str(tls / f"{name}.pem"),
+                                       "connect_private_key": str(tls / f"{name}.key.pem")}}},
+        "plugins_loading": {"enabled": False},
+        "access_control": acl,
+    }
+    (folder / "router.json5").write_text(
+        f"// A fleet router with mutual TLS and access control (`mmatch keys`): "
+        f"mmatch router --config {folder / 'router.json5'}\n" + json.dumps(router, indent=2) + "\n")
+    return [f"zenoh access control {folder / 'acl.json5'}, router config {folder / 'router.json5'}"]
 
 
 def make_tls(folder: Path, names: list[str], *, routers: list[str] = (), days: int = 365) -> list[str]:

@@ -15,9 +15,11 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from mmatch.edge import keys
@@ -100,13 +102,35 @@ def zenoh_config_json(cfg: ZenohSection) -> dict[str, Any]:
         out["listen/endpoints"] = list(cfg.listen)
     elif cfg.listen:
         out["listen/endpoints"] = list(cfg.listen)
+    if cfg.tls_root_ca:  # mutual TLS: the same certificate when listening and when connecting
+        tls = "transport/link/tls/"
+        out[tls + "root_ca_certificate"] = cfg.tls_root_ca
+        out[tls + "enable_mtls"] = True
+        out[tls + "verify_name_on_connect"] = bool(cfg.tls_verify_name)
+        for side in ("listen", "connect"):
+            out[f"{tls}{side}_certificate"] = cfg.tls_certificate
+            out[f"{tls}{side}_private_key"] = cfg.tls_private_key
     return out
+
+
+def _check_file(key: str, path: str) -> None:
+    """ConfigError naming `key` when `path` is not a readable file."""
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{key}: {path} is a folder, not a file")
+    if not p.is_file():
+        raise ConfigError(f"{key}: {path}: no such file")
+    if not os.access(p, os.R_OK):
+        raise ConfigError(f"{key}: {path}: not readable")
 
 
 def make_zenoh_config(cfg: ZenohSection) -> Any:
     """A `zenoh.Config` from our section (on top of `config_file` when given)."""
     import zenoh
 
+    for key in ("config_file", "tls_root_ca", "tls_certificate", "tls_private_key"):
+        if getattr(cfg, key):
+            _check_file(f"zenoh.{key}", getattr(cfg, key))
     try:
         zconf = zenoh.Config.from_file(cfg.config_file) if cfg.config_file else zenoh.Config()
         for key, value in zenoh_config_json(cfg).items():
@@ -114,7 +138,8 @@ def make_zenoh_config(cfg: ZenohSection) -> Any:
     except ConfigError:
         raise
     except Exception as exc:  # zenoh raises ZError for bad files and endpoints
-        raise ConfigError(f"zenoh: {exc}") from exc
+        where = f"zenoh.config_file: {cfg.config_file}: " if cfg.config_file else "zenoh: "
+        raise ConfigError(f"{where}{exc}") from exc
     return zconf
 
 
