@@ -3,11 +3,12 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+TRAIN_STAMP := $(VENV)/.installed-train
 export DEPTHAI_TELEMETRY := 0
 export DEPTHAI_PROTOCOL := usb
 export DEPTHAI_DISABLE_STARTUP_NOTIFICATIONS := 1
 
-.PHONY: demo test bench docs eval-easy eval-hard venv clean
+.PHONY: demo test bench docs train eval-easy eval-hard venv venv-train clean
 
 venv: $(STAMP)
 
@@ -18,11 +19,21 @@ $(STAMP): requirements.txt pyproject.toml setup.py
 	$(BIN)/python -m pip install -q --no-deps -e .
 	touch $(STAMP)
 
+# PyTorch (CPU) for training and the RM-net export tests: only `make test` and `make train` need it
+venv-train: $(TRAIN_STAMP)
+
+$(TRAIN_STAMP): $(STAMP) requirements-train.txt
+	$(BIN)/python -m pip install -q -r requirements-train.txt
+	touch $(TRAIN_STAMP)
+
 demo: $(STAMP)
 	$(BIN)/mmatch demo --out mmatch-demo
 
-test: $(STAMP)
+test: $(STAMP) $(TRAIN_STAMP)
 	$(BIN)/python -m pytest tests
+
+train: $(TRAIN_STAMP)
+	nice $(BIN)/mmatch train --out train-results
 
 bench: $(STAMP)
 	$(BIN)/mmatch bench --out bench-results
@@ -39,4 +50,4 @@ eval-hard: $(STAMP)
 	$(BIN)/mmatch eval data/hard --json data/hard-eval.json --jobs 2
 
 clean:
-	rm -rf $(VENV) mmatch-demo bench-results data
+	rm -rf $(VENV) mmatch-demo bench-results train-results data

@@ -4,7 +4,8 @@ The repository keeps `mmatch/`, `drivers/` and `edge/` side by side (DESIGN.md);
 installs the last two as `mmatch.drivers` and `mmatch.edge`, so nothing generic lands at
 the top of site-packages. The data folders `cfg/` (vehicle and Zenoh configs, radar chirp
 profiles, an example camera calibration) and `systemd/` (the unit file) ship as package
-data under `mmatch.cfg` and `mmatch.systemd` (read with `mmatch.edge.resources`).
+data under `mmatch.cfg` and `mmatch.systemd` (read with `mmatch.edge.resources`); the
+RM-net model and its card ship in `mmatch.models`.
 """
 
 from setuptools import find_packages, setup
@@ -24,5 +25,7 @@ for top, patterns in DATA.items():
     packages.append(f"mmatch.{top}")
     package_dir[f"mmatch.{top}"] = top
     package_data[f"mmatch.{top}"] = patterns
+
+package_data["mmatch.models"] = ["*.onnx", "*.md"]
 
 setup(packages=packages, package_dir=package_dir, package_data=package_data)

@@ -29,6 +29,8 @@ COMMANDS: dict[str, str] = {
     "router": "mmatch.edge.commands.router",
     "export": "mmatch.edge.commands.export",
     "keys": "mmatch.edge.commands.keys",
+    "train": "mmatch.edge.commands.train",
+    "ablation": "mmatch.edge.commands.ablation",
 }
 
 

@@ -17,6 +17,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed of the first scene")
     p.add_argument("--mode", choices=["easy", "hard", "mixed"], default="mixed", help="difficulty")
     p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
+    p.add_argument("--vehicles", default=None, metavar="LO-HI",
+                   help="dense traffic: LO-HI other vehicles per scene (default: 1-4 easy, 6-20 hard)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -24,10 +26,12 @@ def run(args: argparse.Namespace) -> int:
     from mmatch.sim.generate import generate
     from mmatch.sim.realism import check_targets, realism_figures
     from mmatch.errors import ConfigError
+    from mmatch.sim.world import traffic_override
 
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ConfigError(f"--out {args.out}: exists and is not a folder")
-    scenes = generate(args.out, args.n, args.seed, args.mode, args.jobs, Progress("sim"))
+    with traffic_override(_vehicle_range(args.vehicles)):
+        scenes = generate(args.out, args.n, args.seed, args.mode, args.jobs, Progress("sim"))
     fig = realism_figures(scenes)
     ok = check_targets(fig)
     print(f"wrote {len(scenes)} scenes ({args.mode}, seed {args.seed}) to {args.out}")
@@ -37,3 +41,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {key:<40} {value:.3f}{mark}" if isinstance(value, float) else f"  {key:<40} {value}")
     (Path(args.out) / "realism.json").write_text(json.dumps({"figures": fig, "within_target": ok}, indent=2))
     return 0
+
+
+def _vehicle_range(text: str | None) -> tuple[int, int] | None:
+    from mmatch.errors import ConfigError
+
+    if text is None:
+        return None
+    try:
+        lo, hi = (int(x) for x in text.split("-"))
+    except ValueError:
+        raise ConfigError(f"--vehicles: {text!r} is not LO-HI (two whole numbers, e.g. 30-40)") from None
+    if lo < 0 or hi < lo or hi > 1000:
+        raise ConfigError(f"--vehicles: {text!r} needs 0 <= LO <= HI <= 1000")
+    return lo, hi

@@ -10,12 +10,18 @@ alignment on real roads.
 
 from __future__ import annotations
 
+import contextlib
+import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
 LANE_W = 3.5
 ROAD_HALF_LEN = 450.0
+# dense traffic: "LO-HI" other vehicles instead of the mode's 1-4 (easy) or 6-20 (hard); set by
+# `mmatch sim --vehicles LO-HI` (an environment variable so that worker processes see it too)
+TRAFFIC_ENV = "MMATCH_SIM_OTHER_VEHICLES"
 
 # static scatterer kinds
 GUARDRAIL, FACADE, POLE, VEGETATION = 0, 1, 2, 3
@@ -201,11 +207,12 @@ def build_world(rng: np.random.Generator, mode: str) -> World:
         b.occ.extend(occ.tolist())
     static_pts, kind, wa, wb, occ = b.result()
     vehicles, ego, cav = _traffic(rng, mode, road, lanes, two_way, relation, half_w, urban)
+    meta = {"mode": mode, "road": road, "lanes": lanes, "relation": relation, "urban": bool(urban)}
+    if other_vehicle_range() is not None:
+        meta["other_vehicles"] = os.environ[TRAFFIC_ENV]
     return World(road=road, lanes=lanes, static_pts=static_pts, static_kind=kind,
                  walls_a=wa, walls_b=wb, wall_occludes=occ, vehicles=vehicles,
-                 ego=ego, cav=cav, relation=relation,
-                 meta={"mode": mode, "road": road, "lanes": lanes, "relation": relation,
-                       "urban": bool(urban)})
+                 ego=ego, cav=cav, relation=relation, meta=meta)
 
 
 def _colour(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -280,10 +287,14 @@ def _traffic(rng, mode, road, lanes, two_way, relation, half_w, urban):
     if not placed:  # fall back to a same-direction CAV right ahead
         lane = int(rng.choice(fwd_lanes))
         add((centres[lane], ego_pos[1] + 25.0), np.pi / 2, rng.uniform(8, 20))
-    n_other = int(rng.integers(1, 5)) if mode == "easy" else int(rng.integers(6, 21))
+    dense = other_vehicle_range()
+    if dense is not None:
+        n_other = int(rng.integers(dense[0], dense[1] + 1))
+    else:
+        n_other = int(rng.integers(1, 5)) if mode == "easy" else int(rng.integers(6, 21))
     span = 90.0
     tries = 0
-    while len(pos) < n_other + 2 and tries < 500:
+    while len(pos) < n_other + 2 and tries < max(500, 25 * n_other):
         tries += 1
         on_cross = road != "straight" and rng.random() < 0.35
         lane = int(rng.integers(lanes))
@@ -312,3 +323,35 @@ def _traffic(rng, mode, road, lanes, two_way, relation, half_w, urban):
     vehicles = Vehicles(pos0=np.array(pos), yaw=np.array(yaw) + heading_noise, speed=np.array(speed),
                         size=_size(rng, n), colour=_colour(rng, n), parked=np.array(parked))
     return vehicles, 0, 1
+
+
+def other_vehicle_range() -> tuple[int, int] | None:
+    """(LO, HI) other vehicles per episode when dense traffic is asked for (TRAFFIC_ENV), else None.
+
+    Lanes hold a vehicle every 7.5 m at most, so very high counts saturate the road.
+    """
+    text = os.environ.get(TRAFFIC_ENV)
+    if not text:
+        return None
+    try:
+        lo, hi = (int(x) for x in text.split("-"))
+    except ValueError:
+        raise ValueError(f"{TRAFFIC_ENV}: {text!r} is not LO-HI (two whole numbers)") from None
+    if lo < 0 or hi < lo:
+        raise ValueError(f"{TRAFFIC_ENV}: {text!r} needs 0 <= LO <= HI")
+    return lo, hi
+
+
+@contextlib.contextmanager
+def traffic_override(vehicles: tuple[int, int] | None) -> Iterator[None]:
+    """Draw LO-HI other vehicles per episode inside the block (and in worker processes started in it)."""
+    old = os.environ.get(TRAFFIC_ENV)
+    if vehicles is not None:
+        os.environ[TRAFFIC_ENV] = f"{int(vehicles[0])}-{int(vehicles[1])}"
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(TRAFFIC_ENV, None)
+        else:
+            os.environ[TRAFFIC_ENV] = old

@@ -1,0 +1,51 @@
+"""What `mmatch train` was asked to do, checked before anything heavy is imported (no torch here)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mmatch.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class TrainRequest:
+    out: str
+    export: str | None = None
+    scenes: int = 4000
+    dense_scenes: int = 0
+    dense_vehicles: str = "60-150"
+    val_share: float = 0.1
+    seed: int = 1000
+    train_seed: int = 0
+    epochs: int = 60
+    patience: int = 8
+    steps: int = 3
+    jobs: int = 2
+    threads: int = 1
+    samples: str | None = None
+
+    @classmethod
+    def from_args(cls, args) -> TrainRequest:
+        req = cls(**{k: getattr(args, k) for k in cls.__dataclass_fields__})
+        req.check()
+        return req
+
+    def check(self) -> None:
+        if self.scenes < 4:
+            raise ConfigError(f"scenes: {self.scenes} is too few (at least 4)")
+        if not 0 < self.val_share < 1:
+            raise ConfigError(f"val_share: {self.val_share} must lie between 0 and 1")
+        if self.epochs < 1 or self.steps < 1 or self.jobs < 1 or self.threads < 1 or self.patience < 1:
+            raise ConfigError("epochs, patience, steps, jobs and threads must be at least 1")
+        parse_range(self.dense_vehicles, "dense_vehicles")
+
+
+def parse_range(text: str, key: str) -> tuple[int, int]:
+    """'LO-HI' -> (LO, HI), 0 <= LO <= HI; a broken value names the key."""
+    try:
+        lo, hi = (int(x) for x in str(text).split("-"))
+    except ValueError:
+        raise ConfigError(f"{key}: {text!r} is not LO-HI (two whole numbers)") from None
+    if lo < 0 or hi < lo:
+        raise ConfigError(f"{key}: {text!r} needs 0 <= LO <= HI")
+    return lo, hi

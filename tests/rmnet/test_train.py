@@ -1,0 +1,42 @@
+"""`mmatch train` end to end on a handful of scenes: simulate, fit, figures, export, card."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from mmatch.edge.cli import main
+
+from .conftest import require_torch
+
+
+def test_smoke_training_and_export(tmp_path, capsys):
+    require_torch()
+    out = tmp_path / "train"
+    model = tmp_path / "model" / "rmnet.onnx"
+    rc = main(["train", "--out", str(out), "--export", str(model), "--scenes", "24", "--epochs", "2",
+               "--jobs", "1", "--threads", "1", "--seed", "4242", "--dense-scenes", "2",
+               "--dense-vehicles", "30-40"])
+    assert rc == 0
+    assert "exported rmnet.onnx" in capsys.readouterr().out
+    history = json.loads((out / "history.json").read_text())
+    assert [h["epoch"] for h in history] == [0, 1]
+    assert all(np.isfinite(h["train_loss"]) and np.isfinite(h["val_loss"]) for h in history)
+    assert (out / "figures" / "epoch_000.png").stat().st_size > 1000
+    card = (tmp_path / "model" / "rmnet.md").read_text()
+    assert "simulation seed 4242" in card and "2 dense-traffic" in card
+    meta = json.loads(card.split("```json")[1].split("```")[0])
+    assert meta["agreement_max_abs"] < 1e-4 and meta["data"]["scenes"] == 24
+
+    from mmatch.ego.match.graph import build_graph
+    from mmatch.ego.match.rmnet_runtime import RMNetSession
+    from .conftest import make_frame
+    g = build_graph(make_frame([[0, 10], [3, 25], [-4, 40]], seed=1), make_frame([[1, 12], [-2, 30]], seed=2))
+    P = RMNetSession(model).run_graph(g)
+    assert P.shape == (3, 2) and ((P >= 0) & (P <= 1)).all()
+
+
+def test_bad_arguments_name_the_key(capsys):
+    rc = main(["train", "--out", "/tmp/unused-rmnet", "--val-share", "1.5"])
+    assert rc == 2 and "val_share" in capsys.readouterr().err
