@@ -17,6 +17,7 @@ SUITES: dict[str, str] = {
     "camera": "mmatch.drivers.camera.bench:run",
     "pipeline": "mmatch.bench:run",
     "edge": "mmatch.edge.bench:run",
+    "rmnet": "mmatch.ego.match.bench:run",
 }
 
 

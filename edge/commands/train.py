@@ -21,6 +21,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dense-scenes", type=int, default=0,
                    help="extra hard scene pairs in dense traffic (--dense-vehicles other vehicles)")
     p.add_argument("--dense-vehicles", default="60-150", help="LO-HI other vehicles of a dense scene")
+    p.add_argument("--synthetic-scenes", type=int, default=0,
+                   help="extra synthetic dense frame pairs (--synthetic-vehicles a view; the simulator's "
+                        "cameras see at most 12-15 vehicles)")
+    p.add_argument("--synthetic-vehicles", default="10-45", help="LO-HI vehicles a view of a synthetic pair")
     p.add_argument("--val-share", type=float, default=0.1, help="share of the scenes kept for validation")
     p.add_argument("--seed", type=int, default=1000, help="simulation seed (never the evaluation seeds)")
     p.add_argument("--train-seed", type=int, default=0, help="seed of initialisation and batch order")

@@ -10,6 +10,10 @@ MATCHERS: dict[str, str] = {
     "oracle": "mmatch.ego.match.oracle:OracleMatcher",
     "consensus": "mmatch.ego.match.consensus:ConsensusMatcher",
     "none": "mmatch.ego.match.none:NoMatcher",
+    "rmnet": "mmatch.ego.match.rmnet:RMNetMatcher",
+    "rmnet-only": "mmatch.ego.match.rmnet:RMNetOnlyMatcher",
+    "geometry": "mmatch.ego.match.rmnet:GeometryMatcher",
+    "descriptor": "mmatch.ego.match.rmnet:DescriptorMatcher",
 }
 ALIGNERS: dict[str, str] = {
     "centroid-icp": "mmatch.ego.align.centroid_icp:CentroidICPAligner",

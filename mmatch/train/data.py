@@ -70,26 +70,49 @@ def _scene_sample(args: tuple[int, int, str]) -> Sample | None:
     return sample_from_frames(own, other, scene.gt_pairs, scene.name)
 
 
-def simulate_samples(seed: int, n: int, modes: tuple[str, ...] = ("easy", "hard"), jobs: int = 1,
-                     progress: Callable[[int, int], None] | None = None) -> list[Sample]:
-    """Samples of `n` simulated scenes of data set `seed`, the modes taken in turn (scene k: modes[k % len])."""
-    tasks = [(seed, k, modes[k % len(modes)]) for k in range(n)]
+def _synthetic_sample(args: tuple[int, int]) -> Sample | None:
+    from mmatch.codec import decode, encode
+    from mmatch.ego.match.synthetic import dense_pair
+
+    seed, per_view = args
+    own, other, gt, _ = dense_pair(seed, per_view)
+    other = decode(encode(other))                   # what the Ego receives (quantised)
+    return sample_from_frames(own, other, np.column_stack([own.vehicle_box_index[gt[:, 0]],
+                                                           other.vehicle_box_index[gt[:, 1]]]), f"synthetic_{seed}")
+
+
+def synthetic_samples(seed: int, n: int, vehicles: tuple[int, int], jobs: int = 1,
+                      progress: Callable[[int, int], None] | None = None) -> list[Sample]:
+    """Samples of n synthetic dense frame pairs (ego/match/synthetic.py), vehicles[0]-[1] a view."""
+    rng = np.random.default_rng([seed, 77])
+    tasks = [(seed * 100_000 + k, int(rng.integers(vehicles[0], vehicles[1] + 1))) for k in range(n)]
+    return _run(_synthetic_sample, tasks, jobs, progress)
+
+
+def _run(fn, tasks, jobs, progress) -> list[Sample]:
     out: list[Sample] = []
+    n = len(tasks)
     if jobs <= 1:
-        results = map(_scene_sample, tasks)
-        for k, s in enumerate(results):
+        for k, s in enumerate(map(fn, tasks)):
             if s is not None:
                 out.append(s)
             if progress:
                 progress(k + 1, n)
         return out
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        for k, s in enumerate(pool.map(_scene_sample, tasks, chunksize=8)):
+        for k, s in enumerate(pool.map(fn, tasks, chunksize=8)):
             if s is not None:
                 out.append(s)
             if progress:
                 progress(k + 1, n)
     return out
+
+
+def simulate_samples(seed: int, n: int, modes: tuple[str, ...] = ("easy", "hard"), jobs: int = 1,
+                     progress: Callable[[int, int], None] | None = None) -> list[Sample]:
+    """Samples of `n` simulated scenes of data set `seed`, the modes taken in turn (scene k: modes[k % len])."""
+    tasks = [(seed, k, modes[k % len(modes)]) for k in range(n)]
+    return _run(_scene_sample, tasks, jobs, progress)
 
 
 def save_samples(path: str, samples: list[Sample]) -> None:

@@ -14,6 +14,8 @@ class TrainRequest:
     scenes: int = 4000
     dense_scenes: int = 0
     dense_vehicles: str = "60-150"
+    synthetic_scenes: int = 0
+    synthetic_vehicles: str = "10-45"
     val_share: float = 0.1
     seed: int = 1000
     train_seed: int = 0
@@ -38,6 +40,9 @@ class TrainRequest:
         if self.epochs < 1 or self.steps < 1 or self.jobs < 1 or self.threads < 1 or self.patience < 1:
             raise ConfigError("epochs, patience, steps, jobs and threads must be at least 1")
         parse_range(self.dense_vehicles, "dense_vehicles")
+        lo, _ = parse_range(self.synthetic_vehicles, "synthetic_vehicles")
+        if lo < 2:
+            raise ConfigError(f"synthetic_vehicles: {self.synthetic_vehicles!r} needs at least 2 vehicles a view")
 
 
 def parse_range(text: str, key: str) -> tuple[int, int]:

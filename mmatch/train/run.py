@@ -13,7 +13,7 @@ import torch
 
 from mmatch.errors import ConfigError
 from mmatch.train.request import TrainRequest, parse_range
-from mmatch.train.data import Sample, load_samples, save_samples, simulate_samples
+from mmatch.train.data import Sample, load_samples, save_samples, simulate_samples, synthetic_samples
 from mmatch.train.export import agreement, export_onnx
 from mmatch.train.figures import epoch_figure
 from mmatch.train.fit import FitConfig, fit
@@ -50,6 +50,9 @@ def _data(req: TrainRequest) -> list[Sample]:
         from mmatch.sim.world import traffic_override
         with traffic_override(parse_range(req.dense_vehicles, "dense_vehicles")):
             samples += simulate_samples(req.seed + 1, req.dense_scenes, ("hard",), req.jobs, Bar("simulate dense"))
+    if req.synthetic_scenes:
+        samples += synthetic_samples(req.seed + 2, req.synthetic_scenes, parse_range(req.synthetic_vehicles,
+                                     "synthetic_vehicles"), req.jobs, Bar("synthetic dense"))
     if req.samples:
         save_samples(req.samples, samples)
     return samples
@@ -98,6 +101,8 @@ def train(req: TrainRequest) -> dict:
         "data": {"simulation_seed": req.seed, "scenes": req.scenes, "modes": "easy and hard in turn",
                  "dense_scenes": req.dense_scenes, "dense_vehicles": req.dense_vehicles,
                  "dense_seed": req.seed + 1 if req.dense_scenes else None,
+                 "synthetic_scenes": req.synthetic_scenes, "synthetic_vehicles": req.synthetic_vehicles,
+                 "synthetic_seed": req.seed + 2 if req.synthetic_scenes else None,
                  "frame_pairs": len(samples), "train": len(tr), "validation": len(val),
                  "cav_side": "the real CAV-side pipeline (mmatch.cav.process) on both views"},
         "training": {"seed": req.train_seed, "epochs_run": len(history), "best_epoch": best.epoch,
@@ -124,7 +129,9 @@ mmatch/train/model.py). Written by `mmatch train`; inputs and shapes in mmatch/e
   (32-d nodes, 16-d edges), ONNX opset 18, one file.
 - Data: {d['frame_pairs']} simulated frame pairs with 2+ vehicles a view out of {d['scenes']} scenes
   ({d['modes']}, simulation seed {d['simulation_seed']}) plus {d['dense_scenes']} dense-traffic hard scenes
-  ({d['dense_vehicles']} other vehicles, seed {d['dense_seed']}); {d['cav_side']}; each pair also seen from
+  ({d['dense_vehicles']} other vehicles, seed {d['dense_seed']}) plus {d['synthetic_scenes']} synthetic dense frame
+  pairs ({d['synthetic_vehicles']} vehicles a view, mmatch/ego/match/synthetic.py, seed {d['synthetic_seed']});
+  {d['cav_side']}; each pair also seen from
   the other vehicle. Split by scene: {d['train']} training, {d['validation']} validation.
 - Training: weighted BCE over the steps (omega = #negative / #positive), AdamW, cosine schedule,
   seed {t['seed']}, early stopping on the validation loss: {t['epochs_run']} epochs run, best {t['best_epoch']};

@@ -17,7 +17,7 @@ def test_smoke_training_and_export(tmp_path, capsys):
     model = tmp_path / "model" / "rmnet.onnx"
     rc = main(["train", "--out", str(out), "--export", str(model), "--scenes", "24", "--epochs", "2",
                "--jobs", "1", "--threads", "1", "--seed", "4242", "--dense-scenes", "2",
-               "--dense-vehicles", "30-40"])
+               "--dense-vehicles", "30-40", "--synthetic-scenes", "3"])
     assert rc == 0
     assert "exported rmnet.onnx" in capsys.readouterr().out
     history = json.loads((out / "history.json").read_text())
@@ -25,7 +25,7 @@ def test_smoke_training_and_export(tmp_path, capsys):
     assert all(np.isfinite(h["train_loss"]) and np.isfinite(h["val_loss"]) for h in history)
     assert (out / "figures" / "epoch_000.png").stat().st_size > 1000
     card = (tmp_path / "model" / "rmnet.md").read_text()
-    assert "simulation seed 4242" in card and "2 dense-traffic" in card
+    assert "simulation seed 4242" in card and "2 dense-traffic" in card and "3 synthetic dense" in card
     meta = json.loads(card.split("```json")[1].split("```")[0])
     assert meta["agreement_max_abs"] < 1e-4 and meta["data"]["scenes"] == 24
 
