@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except MMatchError as exc:
         print(f"mmatch {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return getattr(exc, "exit_code", 2)  # run/record: 78 for a config error (systemd)
     except OSError as exc:  # an output path that is a file, a full disk, no permission
         print(f"mmatch {args.command}: error: {exc}", file=sys.stderr)
         return 1

@@ -356,12 +356,23 @@ def from_dict(data: dict, *, source: str = "<dict>") -> VehicleConfig:
 def load(path: str | Path, overrides: dict | None = None) -> VehicleConfig:
     """Load a TOML file; `overrides` is a nested dict merged on top (from the CLI)."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a folder, not a config file (e.g. cfg/vehicle.toml)")
     try:
-        data = tomllib.loads(path.read_text())
+        text = path.read_bytes().decode("utf-8")
+        data = tomllib.loads(text)
     except FileNotFoundError as exc:
         raise ConfigError(f"{path}: no such file") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); "
+                          "a config is a TOML file") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    if not data:
+        raise ConfigError(f"{path}: the config is empty (at least [vehicle] id and role; "
+                          "`mmatch config --example cav` prints one)")
     if overrides:
         data = merge(data, overrides)
     return from_dict(data, source=str(path))

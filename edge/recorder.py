@@ -40,6 +40,9 @@ from mmatch.errors import DeviceError
 log = logging.getLogger(__name__)
 
 MB = 1024 * 1024
+#: at most this long to write what is queued and finish the file on close, s
+#: (systemd/mmatch-edge.service's TimeoutStopSec is longer)
+CLOSE_TIMEOUT_S = 30.0
 
 
 class _RawFile:
@@ -167,7 +170,7 @@ class Recorder:
             self._closed = True
         if self._thread is not None:
             self._queue.put(("stop",))
-            self._thread.join(30.0)
+            self._thread.join(CLOSE_TIMEOUT_S)
             self._thread = None
         else:
             self._finish_file()

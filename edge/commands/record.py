@@ -14,10 +14,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmatch.edge.commands.run import load_config, run_service
-    from mmatch.errors import ConfigError
+    from mmatch.edge.commands.run import service_main
 
-    cfg = load_config(args)
-    if not cfg.log.dir:
-        raise ConfigError("log.dir: recording needs a log folder (--log-dir DIR)")
-    return run_service(cfg, duration=args.duration, process=False)
+    return service_main(args, process=False, need_log=True)

@@ -70,16 +70,18 @@ def run_service(cfg, *, duration: float | None = None, process: bool = True) -> 
     ident = make_identity(cfg) if process else None
     notifier = Notifier()
     with contextlib.ExitStack() as stack:
-        recorder = None
-        if cfg.log.dir:
-            recorder = stack.enter_context(Recorder(cfg.log, prefix=f"{cfg.vehicle.id}",
-                                                    config_text=config_mod.to_toml(cfg)))
+        # the recorder opens last and closes first: a log never waits on a sensor or on Zenoh
+        # (systemd's TimeoutStopSec covers Recorder.CLOSE_TIMEOUT_S and the readers' joins)
         transport = stack.enter_context(Transport(cfg.zenoh)) if process else None
         radar = open_radar(cfg)
         stack.callback(radar.close)
         camera = open_camera(cfg, radar=radar)
         stack.callback(camera.close)
         stack.callback(notifier.close)
+        recorder = None
+        if cfg.log.dir:
+            recorder = stack.enter_context(Recorder(cfg.log, prefix=f"{cfg.vehicle.id}",
+                                                    config_text=config_mod.to_toml(cfg)))
         loop = VehicleLoop(cfg, radar, camera, pipeline, transport=transport, recorder=recorder,
                            notifier=notifier, process=process, identity=ident)
 
@@ -105,6 +107,25 @@ def run_service(cfg, *, duration: float | None = None, process: bool = True) -> 
     return rc
 
 
+#: exit status of a configuration error: systemd does not restart on it
+#: (RestartPreventExitStatus= in systemd/mmatch-edge.service); EX_CONFIG of sysexits.h
+EXIT_CONFIG = 78
+
+
+def service_main(args: argparse.Namespace, *, process: bool = True, need_log: bool = False) -> int:
+    """Load the config and run the service; a ConfigError (at load or while opening what the
+    config names) exits with EXIT_CONFIG."""
+    from mmatch.errors import ConfigError
+
+    try:
+        cfg = load_config(args)
+        if need_log and not cfg.log.dir:
+            raise ConfigError("log.dir: recording needs a log folder (--log-dir DIR)")
+        return run_service(cfg, duration=args.duration, process=process)
+    except ConfigError as exc:
+        exc.exit_code = EXIT_CONFIG
+        raise
+
+
 def run(args: argparse.Namespace) -> int:
-    cfg = load_config(args)
-    return run_service(cfg, duration=args.duration)
+    return service_main(args)

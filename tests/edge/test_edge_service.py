@@ -51,6 +51,54 @@ def test_bad_config_is_refused_at_start_naming_the_key(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('[vehicle]\nid = "x"\n[radar]\nbaudrate = "fast"\n')
     res = mmatch(["run", "-c", str(bad)])
-    assert res.returncode == 2 and "radar.baudrate" in res.stderr
+    assert res.returncode == 78 and "radar.baudrate" in res.stderr   # EX_CONFIG: systemd does not restart
     res = mmatch(["run", "-c", str(REPO / "cfg" / "vehicle-cav-sim.toml"), "--set", "sim.rate_hz=-5"])
-    assert res.returncode == 2 and "sim.rate_hz" in res.stderr
+    assert res.returncode == 78 and "sim.rate_hz" in res.stderr
+
+
+@pytest.mark.parametrize("case, message", [
+    ("latin1", "not UTF-8"), ("folder", "is a folder"), ("empty", "empty"), ("comments", "empty"),
+    ("missing", "no such file"), ("zenoh_file", "zenoh.config_file"), ("zenoh_dir", "zenoh.config_file"),
+    ("field_no_key", "auth.key_file"),
+])
+def test_each_broken_config_is_a_clear_error_naming_the_path_or_key(tmp_path, case, message):
+    path = tmp_path / "v.toml"
+    sim = '[vehicle]\nid = "cav1"\nrole = "cav"\n[auth]\ndev_dir = "%s"\n' % (tmp_path / "dev")
+    if case == "latin1":
+        path.write_bytes('[vehicle]\nid = "véhicule"\n'.encode("latin-1"))
+    elif case == "folder":
+        path = tmp_path
+    elif case == "empty":
+        path.write_text("")
+    elif case == "comments":
+        path.write_text("# nothing but a comment\n")
+    elif case == "missing":
+        path = tmp_path / "nope.toml"
+    elif case == "zenoh_file":
+        path.write_text(sim + '[zenoh]\nconfig_file = "%s"\n' % (tmp_path / "gone.json5"))
+    elif case == "zenoh_dir":
+        path.write_text(sim + '[zenoh]\nconfig_file = "%s"\n' % tmp_path)
+    elif case == "field_no_key":
+        path.write_text('[vehicle]\nid = "cav1"\n[radar]\nsource = "uart"\nport = "/dev/null"\n')
+    res = mmatch(["run", "-c", str(path), "--duration", "5"])
+    assert res.returncode == 78, (res.returncode, res.stderr[-1000:])
+    assert message in res.stderr and "Traceback" not in res.stderr, res.stderr[-1000:]
+    if case not in ("zenoh_file", "zenoh_dir", "field_no_key"):
+        assert str(path) in res.stderr
+
+
+def test_the_recorder_opens_after_zenoh_a_failed_start_leaves_no_log(tmp_path):
+    from netutil import free_port
+
+    port = free_port()
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", port))
+    busy.listen()
+    try:
+        cfg = write_vehicle_cfg(tmp_path / "cav.toml", vid="cav1", role="cav",
+                                listen=[f"tcp/127.0.0.1:{port}"], connect=[], log_dir=tmp_path / "logs")
+        res = mmatch(["run", "-c", str(cfg), "--duration", "5"])
+    finally:
+        busy.close()
+    assert res.returncode == 2 and "zenoh" in res.stderr, res.stderr[-1000:]
+    assert not (tmp_path / "logs").exists()              # no empty log of a run that never started

@@ -47,6 +47,17 @@ def test_unit_has_the_required_settings():
     assert any("ttyUSB" in d for d in u["Service.DeviceAllow"])
 
 
+def test_a_config_error_is_not_restarted_memory_is_bounded_and_stop_outlasts_the_recorder():
+    from mmatch.edge.commands.run import EXIT_CONFIG
+    from mmatch.edge.recorder import CLOSE_TIMEOUT_S
+
+    one = {k: v[-1] for k, v in _unit().items()}
+    assert str(EXIT_CONFIG) in one["Service.RestartPreventExitStatus"].split()
+    assert one["Service.MemoryMax"].endswith(("M", "G")) and "Service.MemoryHigh" in one
+    # SIGTERM -> reader joins (5 s) + the recorder's close + Zenoh's close, before SIGKILL
+    assert int(one["Service.TimeoutStopSec"]) >= CLOSE_TIMEOUT_S + 5 + 5
+
+
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
 def test_systemd_analyze_verify(tmp_path):
     # verify checks that ExecStart exists: point it at this checkout's entry point
