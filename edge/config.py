@@ -353,14 +353,14 @@ def from_dict(data: dict, *, source: str = "<dict>") -> VehicleConfig:
     return cfg
 
 
-def load(path: str | Path, overrides: dict | None = None) -> VehicleConfig:
-    """Load a TOML file; `overrides` is a nested dict merged on top (from the CLI)."""
+def read_table(path: str | Path) -> dict:
+    """The TOML table of a config file; ConfigError naming the path for a missing file, a
+    folder, a file that is not UTF-8 or not TOML, and an empty one."""
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"{path}: is a folder, not a config file (e.g. cfg/vehicle.toml)")
     try:
-        text = path.read_bytes().decode("utf-8")
-        data = tomllib.loads(text)
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
     except FileNotFoundError as exc:
         raise ConfigError(f"{path}: no such file") from exc
     except UnicodeDecodeError as exc:
@@ -373,6 +373,12 @@ def load(path: str | Path, overrides: dict | None = None) -> VehicleConfig:
     if not data:
         raise ConfigError(f"{path}: the config is empty (at least [vehicle] id and role; "
                           "`mmatch config --example cav` prints one)")
+    return data
+
+
+def load(path: str | Path, overrides: dict | None = None) -> VehicleConfig:
+    """Load a TOML file; `overrides` is a nested dict merged on top (from the CLI)."""
+    data = read_table(path)
     if overrides:
         data = merge(data, overrides)
     return from_dict(data, source=str(path))

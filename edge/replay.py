@@ -177,8 +177,14 @@ def compare_fused(recorded: list[dict], replayed: list[dict], atol: float = 1e-6
             same += 1
         else:
             differ.append(m["seq"])
+    # a replayed result the live run never logged, inside the span it logged (after its last
+    # record a cut log may lack the result of a frame it still holds)
+    last = max((float(m["stamp"]) for m in recorded), default=float("-inf"))
+    seen = {key(m) for m in recorded}
+    extra = [m["seq"] for m in replayed if key(m) not in seen and float(m["stamp"]) <= last]
     return {"recorded": len(recorded), "replayed": len(replayed), "same": same,
-            "differ": differ, "missing": missing}
+            "differ": differ, "missing": missing, "extra": extra,
+            "match": bool(recorded) and not differ and not missing and not extra}
 
 
 def _close(a: Any, b: Any, atol: float) -> bool:
@@ -194,6 +200,20 @@ def _close(a: Any, b: Any, atol: float) -> bool:
     return a == b
 
 
+def _check_capture(path: Path) -> None:
+    """ParseError unless `path` looks like a raw TI UART capture (the magic word in its first MiB)."""
+    from mmatch.drivers.ti.header import MAGIC
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 20)
+    except OSError as exc:
+        raise ParseError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    if MAGIC not in head:
+        raise ParseError(f"{path}: neither an MCAP log nor a raw TI UART capture "
+                         f"({'empty' if not head else 'no TI magic word in its first MiB'})")
+
+
 def _replay_config(log_path: str | Path, is_log: bool, config_path: str | None, sets: list[str]) -> Any:
     import tomllib
 
@@ -201,7 +221,7 @@ def _replay_config(log_path: str | Path, is_log: bool, config_path: str | None, 
 
     overrides = cfgmod.parse_overrides(sets)
     if config_path:
-        data = tomllib.loads(Path(config_path).read_text())
+        data = cfgmod.read_table(config_path)
     else:
         text = log_config_text(log_path) if is_log else None
         data = tomllib.loads(text) if text else {"vehicle": {"id": "replay", "role": "cav"}}
@@ -233,6 +253,8 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
     if not path.exists():
         raise ParseError(f"{path}: no such file or folder")
     is_log = path.is_dir() or logreader.is_mcap(path)
+    if not is_log:
+        _check_capture(path)
     cfg = _replay_config(path, is_log, config_path, list(sets))
     camera, height = default_camera(), cfg.radar.height_m
     if is_log:
@@ -316,7 +338,7 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
                     rx_bad += 1
     summary.update(runs=runs, frames=n_frames, fused_results=len(fused), rx_rejected=rx_bad,
                    seconds=round(time.perf_counter() - t0, 3),
-                   truncated=report.truncated, files=report.files)
+                   truncated=report.truncated, corrupt=report.corrupt, files=report.files)
     if not is_log:
         summary["reader"] = cap_stats
     if node is not None:

@@ -21,7 +21,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fused-out", help="write the replayed fused results here (JSON lines)")
     p.add_argument("--frames-out", help="write the replayed radar frames here (JSON)")
     p.add_argument("--compare", action="store_true",
-                   help="compare with the fused results recorded in the log; exit 1 when they differ")
+                   help="compare with the fused results recorded in the log; exit 1 on any difference, a result "
+                        "missing or extra, or a log without recorded results")
     p.add_argument("--json", help="write a summary JSON here")
 
 
@@ -43,6 +44,6 @@ def run(args: argparse.Namespace) -> int:
             f.write(text)
     print(text)
     cmp = summary.get("compare")
-    if cmp and (cmp["differ"] or cmp["missing"]):
+    if cmp is not None and not cmp["match"]:  # any difference, or nothing recorded to compare
         return 1
     return 0
