@@ -37,6 +37,7 @@ def _cases(tmp_path) -> list[tuple[list[str], str]]:
         (["sim", "--out", str(tmp_path / "s"), "--jobs", "0"], "argument --jobs: must be >= 1, got 0"),
         (["demo", "--out", str(tmp_path / "d"), "--jobs", "0"], "argument --jobs: must be >= 1, got 0"),
         (["demo", "--out", str(a_file), "--n", "1"], "exists and is not a folder"),
+        (["replay", str(a_file), "--fast"], "neither an MCAP log nor a raw TI UART capture"),
     ]
 
 
