@@ -255,6 +255,8 @@ class VehicleLoop:
                 if wd is not None and now - last_wd >= wd:
                     self.notifier.watchdog()
                     last_wd = now
+                if self.identity is not None and self.identity.trust is not None:
+                    self.identity.trust.maybe_reload()  # a changed file or SIGHUP: new keys now
                 if now - last_status >= cfg.loop.status_interval_s:
                     self._status()
                     last_status = now

@@ -102,3 +102,19 @@ def test_the_recorder_opens_after_zenoh_a_failed_start_leaves_no_log(tmp_path):
         busy.close()
     assert res.returncode == 2 and "zenoh" in res.stderr, res.stderr[-1000:]
     assert not (tmp_path / "logs").exists()              # no empty log of a run that never started
+
+
+def test_sighup_reloads_the_trust_file_without_a_restart(tmp_path):
+    cfg = write_vehicle_cfg(tmp_path / "ego.toml", vid="ego1", role="ego", listen=[], connect=[],
+                            log_dir=None, cavs=["cav1"])
+    out = tmp_path / "ego.out"
+    proc = start(["run", "-c", str(cfg)], out)
+    try:
+        assert wait_for(lambda: "loop running" in out.read_text(), 40), out.read_text()[-2000:]
+        assert out.read_text().count("trust file") == 1
+        proc.send_signal(signal.SIGHUP)
+        assert wait_for(lambda: out.read_text().count("trust file") == 2, 10), out.read_text()[-2000:]
+        assert proc.poll() is None                           # still running: no restart
+        assert stop(proc) == 0
+    finally:
+        stop(proc, signal.SIGKILL)
