@@ -336,6 +336,8 @@ class VehicleLoop:
         links = ""
         if self.node is not None and self.node.links:
             links = " ".join(f"{n}:{'up' if s.up else 'LOST'}" for n, s in self.node.links.items())
+        if self.identity is not None and self.identity.mode == "dev":
+            links = (links + " " if links else "") + "DEV KEYS"
         if h.get("recorder", {}).get("state") == "failing":
             links = (links + " " if links else "") + f"LOG FAILING: {h['recorder']['error']}"
         text = format_status(h["rates"], {k: v for k, v in h["drops"].items() if v}, links)

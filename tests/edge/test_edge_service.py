@@ -41,7 +41,7 @@ def test_notify_watchdog_status_and_clean_stop(tmp_path, sig):
         srv.close()
     assert rc == 0, (tmp_path / "out.txt").read_text()[-3000:]
     status = next(m for m in got if m.startswith("STATUS=radar"))
-    assert "/s" in status and "drops" in status
+    assert "/s" in status and "drops" in status and "DEV KEYS" in status  # simulated: flagged
     report = logreader.LogReport()
     frames = sum(1 for m in logreader.read_messages(tmp_path / "logs", report=report) if m.topic == "/vehicle/frame")
     assert report.truncated == [] and frames > 5  # finished file: summary and footer written
