@@ -75,7 +75,7 @@ def draw_bev(scene: Scene, T_est: np.ndarray | None, box_pairs: np.ndarray, path
     from matplotlib.lines import Line2D
     from matplotlib.patches import Polygon
 
-    from mmatch.report.plots import pyplot
+    from mmatch.report.plots import pyplot, save_figure
 
     plt = pyplot()
     gt = scene.gt_T_ego_cav
@@ -160,12 +160,4 @@ def draw_bev(scene: Scene, T_est: np.ndarray | None, box_pairs: np.ndarray, path
     ]
     ax.legend(handles=glyphs, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=3, fontsize=7,
               frameon=False)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    written = []
-    for ext in formats:
-        f = path.with_name(f"{path.name}.{ext}")
-        fig.savefig(f, dpi=dpi, metadata={"Software": None} if ext == "png" else None)
-        written.append(f)
-    plt.close(fig)
-    return written
+    return save_figure(fig, Path(path), formats, dpi)

@@ -42,15 +42,34 @@ def pyplot():
     return plt
 
 
+def save_figure(fig, stem: Path, formats=("png", "svg"), dpi: int = DPI) -> list[Path]:
+    """Write STEM.<format> for each format and close the figure; returns the files.
+
+    PNGs are stored with a 256-colour palette (MAXCOVERAGE keeps every drawn colour within a
+    few levels): about a third of matplotlib's size, small enough for the README.
+    """
+    from PIL import Image
+
+    plt = pyplot()
+    stem = Path(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    written = []
+    for ext in formats:
+        f = stem.with_name(f"{stem.name}.{ext}")
+        fig.savefig(f, dpi=dpi, metadata={"Software": None} if ext == "png" else None)
+        if ext == "png":
+            with Image.open(f) as im:
+                small = im.convert("RGB").quantize(colors=256, method=Image.Quantize.MAXCOVERAGE,
+                                                   dither=Image.Dither.NONE)
+            small.save(f, optimize=True)
+        written.append(f)
+    plt.close(fig)
+    return written
+
+
 def save(fig, out: Path, name: str) -> list[str]:
     """Write NAME.png and NAME.svg into `out`; returns their file names."""
-    plt = pyplot()
-    names = []
-    for ext in ("png", "svg"):
-        fig.savefig(out / f"{name}.{ext}", dpi=DPI, metadata={"Software": None} if ext == "png" else None)
-        names.append(f"{name}.{ext}")
-    plt.close(fig)
-    return names
+    return [f.name for f in save_figure(fig, Path(out) / name)]
 
 
 def _style(k: int, method: dict) -> dict:
@@ -181,7 +200,7 @@ def payload_figure(out: Path, rep: dict, results: list[dict]) -> list[str]:
         return []
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.hist(b / 1000.0, bins=30, color="#1f77b4", edgecolor="white")
+    ax.hist(b / 1000.0, bins=np.arange(0.0, b.max() / 1000.0 + 0.1, 0.05), color="#1f77b4")
     ax.axvline(np.median(b) / 1000.0, color="#d62728", lw=1.2, label=f"median {np.median(b):.0f} B")
     ax.axvspan(5, 9, color="#999999", alpha=0.15, label="paper: 5-9 KB")
     ax.set_xlabel("shared frame on the wire (KB)")
