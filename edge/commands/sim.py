@@ -16,6 +16,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", type=positive_int, default=200, help="number of scene pairs")
     p.add_argument("--seed", type=int, default=0, help="random seed of the first scene")
     p.add_argument("--mode", choices=["easy", "hard", "mixed"], default="mixed", help="difficulty")
+    p.add_argument("--physics", default="nominal",
+                   help="nominal (central constants), wide (each unknown constant drawn per scene from its "
+                        "documented range) or a TOML file of ranges (see mmatch/sim/physics.py)")
     p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
     p.add_argument("--vehicles", default=None, metavar="LO-HI",
                    help="dense traffic: LO-HI other vehicles per scene (default: 1-4 easy, 6-20 hard)")
@@ -31,10 +34,10 @@ def run(args: argparse.Namespace) -> int:
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ConfigError(f"--out {args.out}: exists and is not a folder")
     with traffic_override(_vehicle_range(args.vehicles)):
-        scenes = generate(args.out, args.n, args.seed, args.mode, args.jobs, Progress("sim"))
+        scenes = generate(args.out, args.n, args.seed, args.mode, args.jobs, Progress("sim"), physics=args.physics)
     fig = realism_figures(scenes)
     ok = check_targets(fig)
-    print(f"wrote {len(scenes)} scenes ({args.mode}, seed {args.seed}) to {args.out}")
+    print(f"wrote {len(scenes)} scenes ({args.mode}, physics {args.physics}, seed {args.seed}) to {args.out}")
     print("realism (from the ground-truth labels):")
     for key, value in fig.items():
         mark = "" if key not in ok else ("  ok" if ok[key] else "  OUT OF TARGET")

@@ -9,6 +9,13 @@ i.e. `doppler = A @ v` with the row `A = -cos(el) * [sin(az), cos(az)]`. Two poi
 bearings fix v; RANSAC draws all 2-point hypotheses at once, scores them with a truncated
 quadratic (MSAC) and the best one seeds a weighted least-squares refit on its inliers.
 Points whose residual exceeds the (bearing-dependent) threshold are moving.
+
+With `threshold_sigma` > 0 a second pass sizes each point's threshold from what the
+radar can know of it (cav/accuracy.py): its Doppler noise and its azimuth error times
+how fast the stationary Doppler changes with azimuth at the fitted velocity, both from
+its SNR. A weak point off boresight at speed gets a wide threshold (a parked car's
+returns at 8 dB no longer look like moving ones), a strong one near boresight a narrow
+one (a slow vehicle there still moves).
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ from enum import Enum
 
 import numpy as np
 
+from mmatch.cav.accuracy import RadarAccuracyConfig, stationary_doppler_sigma
 from mmatch.cav.config import EgoMotionConfig
 from mmatch.types import DOPPLER, X, Y, Z
 
@@ -102,13 +110,15 @@ def _bearing_spread_deg(A: np.ndarray) -> float:
     return float(np.degrees(np.ptp(az))) if len(az) else 0.0
 
 
-def fit_egomotion(points: np.ndarray, config: EgoMotionConfig | None = None) -> EgoMotion:
+def fit_egomotion(points: np.ndarray, config: EgoMotionConfig | None = None,
+                  accuracy: RadarAccuracyConfig | None = None) -> EgoMotion:
     """Fit the radar's own velocity to the Doppler of the stationary points of one frame.
 
     points: float32 (N, 5) x, y, z, doppler, snr (radar frame, m and m/s); rows with a
-    non-finite value are never inliers and never moving. Never raises on degenerate input:
-    fewer than `min_points` points, all points along one bearing or no consensus give a
-    result with a non-OK status and the reason.
+    non-finite value are never inliers and never moving. accuracy: the radar's accuracy
+    model for the per-point thresholds (default model when None). Never raises on
+    degenerate input: fewer than `min_points` points, all points along one bearing or no
+    consensus give a result with a non-OK status and the reason.
     """
     cfg = config or EgoMotionConfig()
     pts = np.asarray(points)
@@ -164,6 +174,17 @@ def fit_egomotion(points: np.ndarray, config: EgoMotionConfig | None = None) -> 
         if np.array_equal(new, inl):
             break
         inl = new
+
+    if cfg.threshold_sigma > 0:
+        # ---- second pass: per-point thresholds from the radar's accuracy at the fitted velocity
+        thr = np.maximum(cfg.threshold_sigma * stationary_doppler_sigma(p, v, accuracy or RadarAccuracyConfig()),
+                         cfg.threshold_floor_mps)
+        thr_all[idx] = thr
+        for _ in range(2):
+            inl = np.abs(d - A @ v) <= thr
+            if inl.sum() < cfg.min_inliers or _bearing_spread_deg(A[inl]) < cfg.min_bearing_spread_deg:
+                break
+            v = _weighted_lstsq(A[inl], d[inl], 1.0 / thr[inl] ** 2)
 
     if not np.linalg.norm(v) <= cfg.max_speed_mps:
         return _no_estimate(n, EgoStatus.NO_CONSENSUS,

@@ -86,7 +86,9 @@ def centres_from_boxes(boxes: np.ndarray, camera: CameraModel) -> np.ndarray:
 
 
 def separate(points: np.ndarray, moving: np.ndarray, boxes: np.ndarray, camera: CameraModel,
-             config: SeparationConfig | None = None, proj: Projection | None = None) -> Separation:
+             config: SeparationConfig | None = None, proj: Projection | None = None,
+             residual: np.ndarray | None = None, sigma_az: np.ndarray | None = None,
+             sigma_doppler: np.ndarray | None = None) -> Separation:
     """Assign points (N, >=3, radar frame) to boxes (M, 6) u1, v1, u2, v2, score, depth.
 
     moving: bool (N,) from the ego-motion fit. A box claims a point when
@@ -94,10 +96,18 @@ def separate(points: np.ndarray, moving: np.ndarray, boxes: np.ndarray, camera: 
       elevation_margin_deg for the radar's poor elevation) and its BEV range is within
       depth +- (delta_d + depth_rel * depth), or
     - the point moves, lies in the box's bearing wedge (u1 <= u <= u2, grown by
-      bearing_margin_deg) and within depth +- (delta_d + moving_depth_rel * depth).
-    A box touching the image's left or right edge (edge_px) is open to that side. One
-    point, one box: the box whose depth is nearest the point's range wins. Vectorised
-    over the (N, M) point-box pairs.
+      bearing_margin_deg, or by bearing_margin_sigma standard deviations of the point's
+      own azimuth error when sigma_az (N,) rad is given, plus glint over the box's width)
+      and within depth +- (delta_d + moving_depth_rel * depth).
+    A box touching the image's left or right edge (edge_px) is open to that side.
+
+    One point, one box. Without Doppler information (residual None) the box whose depth
+    is nearest the point's range wins. With residual (N,) m/s (Doppler minus the
+    stationary prediction) and sigma_doppler (N,) m/s, a point claimed by several boxes
+    goes to the one its depth and Doppler agree with: cost = (range gap / depth window)^2
+    + (residual - the box's own radial motion)^2 / sigma^2, the box's motion being the
+    median residual of the points only it claims (0 for a box of stationary points).
+    Vectorised over the (N, M) point-box pairs.
     """
     cfg = config or SeparationConfig()
     n, m = len(points), len(boxes)
@@ -112,32 +122,65 @@ def separate(points: np.ndarray, moving: np.ndarray, boxes: np.ndarray, camera: 
     # wedge margin: the radar's azimuth noise grows off boresight; in pixels at the box's column
     fx, cx = float(camera.K[0, 0]), float(camera.K[0, 2])
     az_box = np.arctan(np.abs((b[:, 0] + b[:, 2]) / 2 - cx) / fx)
-    margin = np.radians(cfg.bearing_margin_deg
-                        + cfg.bearing_margin_growth_deg * np.clip(az_box / np.radians(60.0), 0, 1) ** 2)
-    mu = mg + fx * margin / np.cos(az_box) ** 2
+    px_per_rad = fx / np.cos(az_box) ** 2                                  # (M,)
+    if sigma_az is not None and cfg.bearing_margin_sigma > 0:
+        width_rad = (b[:, 2] - b[:, 0]) / px_per_rad
+        ang = np.hypot(np.asarray(sigma_az, np.float64)[:, None], cfg.glint_share * width_rad[None, :])
+        mu = mg + cfg.bearing_margin_sigma * ang * px_per_rad[None, :]       # (N, M)
+    else:
+        margin = np.radians(cfg.bearing_margin_deg
+                            + cfg.bearing_margin_growth_deg * np.clip(az_box / np.radians(60.0), 0, 1) ** 2)
+        mu = (mg + px_per_rad * margin)[None, :]
     # a box within edge_px of the image's left or right edge is cut by it: open that side
     left = b[:, 0] <= cfg.edge_px
     right = b[:, 2] >= camera.image_size[0] - 1 - cfg.edge_px
-    lo, hi = np.where(left, -np.inf, b[:, 0] - mu), np.where(right, np.inf, b[:, 2] + mu)
+    lo, hi = np.where(left[None], -np.inf, b[None, :, 0] - mu), np.where(right[None], np.inf, b[None, :, 2] + mu)
     lo_box, hi_box = np.where(left, -np.inf, b[:, 0] - mg), np.where(right, np.inf, b[:, 2] + mg)
     mv = mg + float(camera.K[1, 1]) * np.tan(np.radians(min(cfg.elevation_margin_deg, 89.0)))
     u, v = pr.uv[:, 0:1], pr.uv[:, 1:2]
     with np.errstate(invalid="ignore"):
-        wedge = pr.front[:, None] & (u >= lo[None, :]) & (u <= hi[None, :])
+        wedge = pr.front[:, None] & (u >= lo) & (u <= hi)
         in_box = pr.front[:, None] & (u >= lo_box[None, :]) & (u <= hi_box[None, :]) \
             & (v >= b[None, :, 1] - mv) & (v <= b[None, :, 3] + mv)
     gap = np.abs(pr.bev_range[:, None] - b[None, :, 5])                 # (N, M)
-    near = gap <= cfg.delta_d_m + cfg.depth_rel * b[None, :, 5]
-    near_moving = gap <= cfg.delta_d_m + cfg.moving_depth_rel * b[None, :, 5]
+    window = cfg.delta_d_m + cfg.depth_rel * b[None, :, 5]
+    window_moving = cfg.delta_d_m + cfg.moving_depth_rel * b[None, :, 5]
     mov = np.asarray(moving, bool)[:, None]
-    claim = ((in_box & near) | (wedge & mov & near_moving)) & active[None, :]
+    claim_box = in_box & (gap <= window)
+    claim_wedge = wedge & mov & (gap <= window_moving)
+    claim = (claim_box | claim_wedge) & active[None, :]
     cost = np.where(claim, gap, np.inf)
+    if residual is not None and sigma_doppler is not None:
+        cost = _doppler_cost(claim, gap, np.where(claim_box, window, window_moving), mov[:, 0],
+                             np.asarray(residual, np.float64), np.asarray(sigma_doppler, np.float64))
     best = np.argmin(cost, axis=1)
     owner = np.where(np.isfinite(cost[np.arange(n), best]), best, -1).astype(np.int32)
     mine = owner >= 0
     claimed = np.bincount(owner[mine], minlength=m).astype(np.int32)
     claimed_moving = np.bincount(owner[mine & moving], minlength=m).astype(np.int32)
     return Separation(owner=owner, claimed=claimed, claimed_moving=claimed_moving, active=active)
+
+
+def _doppler_cost(claim: np.ndarray, gap: np.ndarray, window: np.ndarray, moving: np.ndarray,
+                  residual: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(N, M) cost of giving each point to each claiming box: depth gap and Doppler disagreement.
+
+    A box's own radial motion is the median residual of its moving points among those only
+    it claims, when those outnumber its stationary ones; otherwise it is a box of stationary
+    points (motion 0).
+    """
+    n, m = claim.shape
+    sole = claim.sum(axis=1) == 1
+    col = np.argmax(claim, axis=1)
+    motion = np.zeros(m)
+    for k in range(m):
+        own = sole & (col == k)
+        mv = own & moving
+        if mv.sum() >= max(1, (own & ~moving).sum()):
+            motion[k] = float(np.median(residual[mv]))
+    s = np.maximum(sigma, 1e-3)[:, None]
+    cost = (gap / np.maximum(window, 1e-6)) ** 2 + ((residual[:, None] - motion[None, :]) / s) ** 2
+    return np.where(claim, cost, np.inf)
 
 
 def grow(points: np.ndarray, residual: np.ndarray, moving: np.ndarray, owner: np.ndarray, boxes: np.ndarray,

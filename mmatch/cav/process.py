@@ -35,10 +35,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from mmatch.cav import background as bg
+from mmatch.cav.accuracy import sigma_azimuth, stationary_doppler_sigma
 from mmatch.cav.clustering import main_clusters
 from mmatch.cav.config import CavConfig
 from mmatch.cav.egomotion import EgoMotion, fit_egomotion
 from mmatch.cav.frustum import centres_from_boxes, grow, project, separate
+from mmatch.cav.plausibility import duplicates, see_through
 from mmatch.errors import MMatchError
 from mmatch.shared import SharedFrame
 from mmatch.types import DESCRIPTOR_DIM, CameraModel
@@ -129,7 +131,7 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
 
     # ---- 1. ego-motion: stationary vs moving
     t0 = time.perf_counter()
-    ego = fit_egomotion(points, cfg.egomotion)
+    ego = fit_egomotion(points, cfg.egomotion, cfg.radar)
     moving = ego.moving
     t1 = time.perf_counter()
     timings["egomotion"] = (t1 - t0) * 1e3
@@ -142,13 +144,27 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
             & np.all(np.abs(boxes[:, :4]) <= lim.max_pixel, axis=1) \
             & (boxes[:, 2] >= boxes[:, 0]) & (boxes[:, 3] >= boxes[:, 1])
     vbox = np.flatnonzero(box_ok).astype(np.int32)          # vehicle v <-> box vbox[v]
+    vbox = vbox[~duplicates(boxes[vbox], cfg.plausibility)]  # second boxes on one vehicle
     vb = boxes[vbox]
-    V = len(vb)
     proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
-    sep = separate(points, moving, vb, camera, cfg.separation, proj)
+    sig_az = sigma_azimuth(points, cfg.radar)
+    if cfg.separation.doppler_assign and ego.ok:
+        sig_d = stationary_doppler_sigma(points, ego.velocity, cfg.radar)
+        sep = separate(points, moving, vb, camera, cfg.separation, proj, ego.residual, sig_az, sig_d)
+    else:
+        sep = separate(points, moving, vb, camera, cfg.separation, proj, sigma_az=sig_az)
     owner = sep.owner                                         # vehicle index or -1
     if proj is not None:
         owner = grow(points, ego.residual, moving, owner, vb, camera, proj, cfg.separation)
+        seen_through = see_through(proj, vb, sep.claimed, cfg.plausibility)
+        if seen_through.any():                                # no vehicle where the box says: drop it
+            keep = ~seen_through
+            renum = np.where(keep, np.cumsum(keep) - 1, -1)
+            owner = np.where(owner >= 0, renum[np.maximum(owner, 0)], -1).astype(np.int32)
+            vbox, vb = vbox[keep], vb[keep]
+            sep = replace(sep, claimed=sep.claimed[keep], claimed_moving=sep.claimed_moving[keep],
+                          active=sep.active[keep])
+    V = len(vb)
     n_mov = sep.claimed_moving
     # moving: some moving points, and not a lone ghost among a parked car's many returns.
     # Without an ego-motion estimate nothing is known to move: every box keeps its points.

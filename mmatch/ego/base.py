@@ -126,8 +126,9 @@ def radial_ground_speeds(frame: SharedFrame) -> tuple[np.ndarray, np.ndarray]:
     """Per vehicle: the ground velocity along the line of sight (V,) m/s and that unit line of sight (V, 2).
 
     From each point's Doppler plus the sender's own velocity projected on the ray
-    (doppler = (v_target - v_radar) . u). NaN for vehicles without points or when the
-    sender has no ego-motion estimate.
+    (doppler = (v_target - v_radar) . u), the median over the vehicle's points (wheel
+    returns spread between standstill and twice the body speed). NaN for vehicles without
+    points or when the sender has no ego-motion estimate.
     """
     V = frame.num_vehicles
     g = np.full(V, np.nan)
@@ -140,14 +141,29 @@ def radial_ground_speeds(frame: SharedFrame) -> tuple[np.ndarray, np.ndarray]:
     gp = frame.vehicle_points[:, 3] + u[:, :2] @ vr
     idx = frame.vehicle_index
     counts = np.bincount(idx, minlength=V)[:V]
-    sums = np.bincount(idx, weights=gp, minlength=V)[:V]
     has = counts > 0
-    g[has] = sums[has] / counts[has]
+    g[has] = _group_medians(idx, gp, V)[has]      # wheel returns spread 0-2x the body: median
     us = np.zeros((V, 2))
     np.add.at(us, idx, u[:, :2])
     us[has] /= np.maximum(np.linalg.norm(us[has], axis=1, keepdims=True), 1e-9)
     u_mean[has] = us[has]
     return g, u_mean
+
+
+def _group_medians(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(n,) median of `values` per group index 0..n-1 (NaN for empty groups), vectorised."""
+    out = np.full(n, np.nan)
+    if len(values) == 0:
+        return out
+    order = np.lexsort((values, group))
+    g, v = group[order], values[order]
+    start = np.searchsorted(g, np.arange(n), "left")
+    stop = np.searchsorted(g, np.arange(n), "right")
+    has = stop > start
+    lo = start + (stop - start - 1) // 2
+    hi = start + (stop - start) // 2
+    out[has] = (v[np.minimum(lo[has], len(v) - 1)] + v[np.minimum(hi[has], len(v) - 1)]) / 2
+    return out
 
 
 def road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float = 0.35,

@@ -1,9 +1,16 @@
 """What a TI-like automotive radar reports of a simulated world (one frame).
 
 A vehicle returns a handful of points from the faces turned to the radar, mostly its
-corners and whichever face is near-specular; far and oblique vehicles give one or two
-points or none. Walls reflect vehicles into mirrored ghosts; clutter adds isolated
-false points. Noise in range, azimuth, elevation and Doppler grows off boresight.
+corners and whichever face is near-specular, plus wheel returns whose Doppler spreads
+between standstill and twice the body speed; far and oblique vehicles give one or two
+points or none. Walls reflect vehicles into mirrored ghosts; clutter adds isolated false
+points. Every return gets an SNR from the radar equation (range^-4 for point-like
+scatterers, range^-3 for distributed ones, Swerling-1 fading) conditioned on passing a
+soft CFAR threshold, and errors that follow from it: range and Doppler noise grow at low
+SNR, azimuth and elevation errors come from the array bound at that SNR and angle, glint
+over an extended target's own angular extent and the array's calibration residual
+(`mmatch.sim.radar_errors`). The constants no deployment can know come from the scene's
+`PhysicsSample` (mmatch/sim/physics.py).
 Doppler is the true radial velocity of target minus radar (positive = receding).
 """
 
@@ -14,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mmatch.sim.geometry import box_corners, segments_block
+from mmatch.sim.physics import PhysicsSample, nominal_sample
 from mmatch.sim.world import FACADE, GUARDRAIL, POLE, VEGETATION, World
 
 LABEL_BACKGROUND = -1
@@ -22,21 +30,94 @@ LABEL_NOISE = -2
 
 @dataclass(frozen=True)
 class RadarSpec:
-    """Field of view, range and error model (TI xWR18xx/AWR2243-class, 3 TX x 4 RX)."""
+    """Field of view and range of a TI xWR18xx/AWR2243-class radar (3 TX x 4 RX)."""
 
     fov_az_deg: float = 60.0
     fov_el_deg: float = 20.0
     max_range_m: float = 100.0
-    range_sigma_m: float = 0.05
-    az_sigma_deg: tuple[float, float] = (0.3, 2.5)      # at boresight, at the FOV edge
-    el_sigma_deg: tuple[float, float] = (1.5, 3.5)
-    doppler_sigma_mps: tuple[float, float] = (0.05, 0.3)
-    ghost_prob: float = 0.12
-    clutter_rate: float = 6.0
 
 
-def _edge_sigma(pair: tuple[float, float], az: np.ndarray, fov: float) -> np.ndarray:
-    return pair[0] + (pair[1] - pair[0]) * np.clip(np.abs(az) / np.radians(fov), 0, 1) ** 2
+# SNR (dB) of a return 10 m away and the range exponent of its power (4: point-like, 3: distributed)
+STATIC_SNR_10M = {GUARDRAIL: (29.0, 3.0), FACADE: (33.0, 3.0), POLE: (38.0, 4.0), VEGETATION: (26.0, 3.0)}
+VEHICLE_SNR_10M = 44.0        # a car's strongest corner; trucks +3 dB; weaker faces by their strength
+WHEEL_LOSS_DB = 6.0
+GHOST_LOSS_DB = 9.0
+SNR_REPORT_SIGMA_DB = 1.0     # the radar's own SNR estimate is noisy
+SNR_REF_DB = 15.0             # range and Doppler noise are the nominal ones above this SNR
+
+
+def snr_mean_db(snr_10m: np.ndarray, exponent: np.ndarray, rng_m: np.ndarray, offset_db: float) -> np.ndarray:
+    """Mean SNR (dB) of returns at range rng_m from their SNR at 10 m and the power's range exponent."""
+    return snr_10m + offset_db - 10.0 * exponent * np.log10(np.maximum(rng_m, 1.0) / 10.0)
+
+
+def detected_snr(rng: np.random.Generator, mean_db: np.ndarray, threshold_db: float,
+                 retries: int = 4) -> np.ndarray:
+    """SNR (dB) of returns that passed a soft CFAR threshold: Swerling-1 fading on the mean,
+    drawn again (up to `retries` times) while below threshold + N(0, 1.5) dB."""
+    snr = mean_db + 10.0 * np.log10(np.maximum(rng.exponential(1.0, len(mean_db)), 1e-6))
+    for _ in range(retries):
+        low = snr < threshold_db + rng.normal(0, 1.5, len(snr))
+        if not low.any():
+            break
+        snr[low] = mean_db[low] + 10.0 * np.log10(np.maximum(rng.exponential(1.0, int(low.sum())), 1e-6))
+    return np.maximum(snr, threshold_db - 3.0)
+
+
+@dataclass(frozen=True)
+class ArrayCalibration:
+    """One radar's angle calibration residual: a bias and a ripple across azimuth (rad)."""
+
+    bias_az: float = 0.0
+    ripple_az: float = 0.0
+    ripple_phase: float = 0.0
+    bias_el: float = 0.0
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, residual_deg: float) -> "ArrayCalibration":
+        s = np.radians(residual_deg)
+        return cls(float(rng.normal(0, s * 0.5)), float(abs(rng.normal(0, s))), float(rng.uniform(0, 2 * np.pi)),
+                   float(rng.normal(0, s)))
+
+    def error(self, az: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(azimuth, elevation) errors (rad) at azimuths az (rad)."""
+        return self.bias_az + self.ripple_az * np.sin(3.0 * az + self.ripple_phase), np.full(len(az), self.bias_el)
+
+
+def array_bound_sigma(snr_db: np.ndarray, angle: np.ndarray, channels: float) -> np.ndarray:
+    """Cramer-Rao bound (rad) of the angle of one point target on a half-wavelength uniform array.
+
+    var(sin theta) = 6 / (pi^2 N (N^2 - 1) SNR), SNR linear; the angle error grows as 1 / cos(theta).
+    """
+    snr = 10.0 ** (np.asarray(snr_db) / 10.0)
+    n = max(float(channels), 2.0)
+    su = np.sqrt(6.0 / (np.pi ** 2 * n * (n * n - 1.0) * snr))
+    return su / np.maximum(np.cos(angle), 0.2)
+
+
+def draw_angle_errors(rng: np.random.Generator, snr_db: np.ndarray, az: np.ndarray, el: np.ndarray,
+                      extent_az: np.ndarray, phys: PhysicsSample,
+                      calibration: ArrayCalibration | None) -> tuple[np.ndarray, np.ndarray]:
+    """Azimuth and elevation errors (rad) per point: array bound x noise scale, glint over the
+    target's angular extent (uniform, +- glint_factor x extent / 2), calibration residual."""
+    n = len(snr_db)
+    s_az = phys.angle_noise_scale * array_bound_sigma(snr_db, az, phys.virtual_channels_az)
+    s_el = phys.angle_noise_scale * array_bound_sigma(snr_db, el, phys.virtual_channels_el)
+    glint = phys.glint_factor * extent_az * rng.uniform(-0.5, 0.5, n)
+    d_az = rng.normal(0, 1, n) * s_az + glint
+    d_el = rng.normal(0, 1, n) * s_el + 0.5 * glint
+    if calibration is not None:
+        c_az, c_el = calibration.error(az)
+        d_az, d_el = d_az + c_az, d_el + c_el
+    return d_az, d_el
+
+
+def _angular_extent(corners: np.ndarray, origin: np.ndarray) -> float:
+    """Azimuth extent (rad) of a BEV box (4, 2) seen from origin (2,)."""
+    rel = corners - origin
+    ang = np.arctan2(rel[:, 1], rel[:, 0])
+    ang = np.unwrap(ang - ang[0]) + ang[0]
+    return float(np.ptp(ang))
 
 
 def _vehicle_scatterers(rng, corners, yaw, size, radar_xy):
@@ -67,16 +148,29 @@ def _vehicle_scatterers(rng, corners, yaw, size, radar_xy):
     return np.column_stack([p, z]), np.concatenate(strength)
 
 
+def _wheels(rng, centre, yaw, size, n):
+    """n wheel-return positions (n, 3) on the wheel arches of one vehicle."""
+    f = np.array([np.cos(yaw), np.sin(yaw)])
+    r = np.array([np.sin(yaw), -np.cos(yaw)])
+    along = rng.choice([-1.0, 1.0], n) * (size[0] / 2 - 0.9)
+    side = rng.choice([-1.0, 1.0], n) * size[1] / 2
+    xy = centre + along[:, None] * f + side[:, None] * r
+    return np.column_stack([xy, rng.uniform(0.2, 0.55, n)])
+
+
 def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_velocity: np.ndarray,
-                  own: int, rng: np.random.Generator, spec: RadarSpec = RadarSpec()
+                  own: int, rng: np.random.Generator, spec: RadarSpec = RadarSpec(),
+                  phys: PhysicsSample | None = None, calibration: ArrayCalibration | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Render one radar frame.
 
     world_T_radar: 4x4 pose of the radar; radar_velocity: (2,) its world velocity, m/s;
-    own: index of the carrying vehicle (never seen). Returns points float32 (N, 5)
-    x, y, z, doppler, snr in the radar frame and labels int32 (N,) (vehicle id, -1
-    background, -2 noise/ghost).
+    own: index of the carrying vehicle (never seen); phys: the scene's constants (nominal
+    when None); calibration: this radar's angle calibration residual (none when None).
+    Returns points float32 (N, 5) x, y, z, doppler, snr in the radar frame and labels int32
+    (N,) (vehicle id, -1 background, -2 noise/ghost).
     """
+    phys = phys or nominal_sample()
     veh = world.vehicles
     origin = world_T_radar[:2, 3]
     R = world_T_radar[:3, :3]
@@ -100,16 +194,19 @@ def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_veloc
                       [0.9 * np.exp(-rng_xy / 60.0), 0.95 * np.exp(-rng_xy / 90.0),
                        0.95 * np.exp(-rng_xy / 90.0), 0.85 * np.exp(-rng_xy / 70.0)])
     keep = rng.random(len(sp)) < p_det
-    sp, kind = sp[keep], kind[keep]
+    sp, kind, rng_xy = sp[keep], kind[keep], rng_xy[keep]
     # points on a facade sit on its line, so their own wall does not hide them (t < 1 in the test)
     blocked = segments_block(origin, sp[:, :2], occ_a, occ_b)
-    sp, kind = sp[~blocked], kind[~blocked]
-    base_snr = np.select([kind == GUARDRAIL, kind == FACADE, kind == POLE, kind == VEGETATION],
-                         [16.0, 20.0, 24.0, 13.0])
+    sp, kind, rng_xy = sp[~blocked], kind[~blocked], rng_xy[~blocked]
+    s10 = np.zeros(len(kind))
+    expo = np.zeros(len(kind))
+    for k, (s, e) in STATIC_SNR_10M.items():
+        s10[kind == k], expo[kind == k] = s, e
     world_pts = [sp]
     world_vel = [np.zeros((len(sp), 2))]
     labels = [np.full(len(sp), LABEL_BACKGROUND)]
-    snr0 = [base_snr]
+    snr_mean = [snr_mean_db(s10, expo, rng_xy, phys.snr_offset_db)]
+    extent = [np.zeros(len(sp))]
 
     # ---- vehicles (moving and parked)
     vel = veh.velocity
@@ -118,10 +215,14 @@ def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_veloc
         d = float(np.hypot(*(centres[k] - origin)))
         if d > spec.max_range_m or d < 1.0:
             continue
-        cand, strength = _vehicle_scatterers(rng, corners[k], veh.yaw[k], veh.size[k], origin)
+        # scattering centres sit inside the bounding box: bumpers and corners are rounded
+        inset = rng.uniform(0.15, 0.35, 2)
+        inner = box_corners(centres[k][None], veh.yaw[k:k + 1], veh.size[k:k + 1, 0] - 2 * inset[0],
+                            veh.size[k:k + 1, 1] - 2 * inset[1])[0]
+        cand, strength = _vehicle_scatterers(rng, inner, veh.yaw[k], veh.size[k], origin)
         if len(cand) == 0:
             continue
-        lam = (1.5 + 10.0 * np.exp(-d / 30.0)) * (1.4 if veh.size[k, 0] > 6 else 1.0)
+        lam = (1.5 + 10.0 * np.exp(-d / 30.0)) * (1.4 if veh.size[k, 0] > 6 else 1.0) * phys.points_scale
         n = min(int(rng.poisson(lam)), 12, len(cand))
         if rng.random() < 0.08:               # specular dropout: the whole vehicle fades
             n = min(n, int(rng.integers(0, 2)))
@@ -130,32 +231,43 @@ def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_veloc
         pick = rng.choice(len(cand), size=n, replace=False, p=strength / strength.sum())
         p = cand[pick]
         p[:, :2] += rng.normal(0, 0.08, (n, 2))
+        s_db = VEHICLE_SNR_10M + 10.0 * np.log10(strength[pick]) + (3.0 if veh.size[k, 0] > 6 else 0.0)
+        v_pts = np.repeat(vel[k][None], n, 0)
+        if veh.speed[k] > 0.5:                # wheel returns: surface speed 0 ... 2 x body speed
+            wheel = rng.random(n) < phys.wheel_share
+            if wheel.any():
+                p[wheel] = _wheels(rng, centres[k], veh.yaw[k], veh.size[k], int(wheel.sum()))
+                v_pts[wheel] = vel[k] * rng.uniform(0.0, 2.0, (int(wheel.sum()), 1))
+                s_db[wheel] = VEHICLE_SNR_10M - WHEEL_LOSS_DB
         ignore = (occ_owner[None, :] == k).repeat(n, 0)
         vis = ~segments_block(origin, p[:, :2], occ_a, occ_b, ignore)
-        p = p[vis]
+        p, v_pts, s_db = p[vis], v_pts[vis], s_db[vis]
         if len(p) == 0:
             continue
+        ext = _angular_extent(corners[k], origin)
         world_pts.append(p)
-        world_vel.append(np.repeat(vel[k][None], len(p), 0))
+        world_vel.append(v_pts)
         labels.append(np.full(len(p), k))
-        snr0.append(np.full(len(p), 30.0 if veh.size[k, 0] > 6 else 27.0))
-        ghost_src.append((p, vel[k]))
+        snr_mean.append(snr_mean_db(s_db, np.full(len(p), 4.0), np.full(len(p), d), phys.snr_offset_db))
+        extent.append(np.full(len(p), ext))
+        ghost_src.append((p, v_pts, snr_mean[-1], ext))
 
     # ---- multipath ghosts mirrored across guardrails and facades
     if ghost_src and len(world.walls_a):
-        gp, gv = _ghosts(rng, np.vstack([g[0] for g in ghost_src]),
-                         np.vstack([np.repeat(g[1][None], len(g[0]), 0) for g in ghost_src]),
-                         origin, world.walls_a, world.walls_b, spec.ghost_prob)
+        gp, gv, take = _ghosts(rng, np.vstack([g[0] for g in ghost_src]), np.vstack([g[1] for g in ghost_src]),
+                               origin, world.walls_a, world.walls_b, phys.ghost_prob)
         if len(gp):
             world_pts.append(gp)
             world_vel.append(gv)
             labels.append(np.full(len(gp), LABEL_NOISE))
-            snr0.append(np.full(len(gp), 18.0))
+            snr_mean.append(np.concatenate([g[2] for g in ghost_src])[take] - GHOST_LOSS_DB)
+            extent.append(np.concatenate([np.full(len(g[0]), g[3]) for g in ghost_src])[take])
 
     P = np.vstack(world_pts)
     V = np.vstack(world_vel)
     lab = np.concatenate(labels).astype(np.int32)
-    snr = np.concatenate(snr0)
+    mean_db = np.concatenate(snr_mean)
+    ext = np.concatenate(extent)
 
     # ---- into the radar frame, Doppler, field of view
     local = (P - world_T_radar[:3, 3]) @ R
@@ -166,10 +278,10 @@ def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_veloc
     doppler = np.einsum("ij,ij->i", rel_v, local) / np.maximum(rng3, 1e-6)
     inside = ((np.abs(az) <= np.radians(spec.fov_az_deg)) & (np.abs(el) <= np.radians(spec.fov_el_deg))
               & (rng3 <= spec.max_range_m) & (rng3 >= 1.0))
-    rng3, az, el, doppler, lab, snr = rng3[inside], az[inside], el[inside], doppler[inside], lab[inside], snr[inside]
+    rng3, az, el, doppler, lab, mean_db, ext = (a[inside] for a in (rng3, az, el, doppler, lab, mean_db, ext))
 
-    # ---- clutter: isolated false detections
-    n_cl = int(rng.poisson(spec.clutter_rate))
+    # ---- clutter: isolated false detections, near the detection threshold
+    n_cl = int(rng.poisson(phys.clutter_rate))
     if n_cl:
         c_r = rng.uniform(2.0, 80.0, n_cl)
         c_az = rng.uniform(-1, 1, n_cl) * np.radians(spec.fov_az_deg)
@@ -177,22 +289,22 @@ def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_veloc
         vx, vy = np.linalg.inv(R)[:2, :2] @ radar_velocity
         stat = -(vx * np.sin(c_az) + vy * np.cos(c_az)) * np.cos(c_el)
         c_dop = np.where(rng.random(n_cl) < 0.5, stat + rng.normal(0, 1.0, n_cl), rng.uniform(-20, 20, n_cl))
-        rng3 = np.concatenate([rng3, c_r])
-        az = np.concatenate([az, c_az])
-        el = np.concatenate([el, c_el])
-        doppler = np.concatenate([doppler, c_dop])
+        rng3, az, el, doppler = (np.concatenate(x) for x in ((rng3, c_r), (az, c_az), (el, c_el), (doppler, c_dop)))
         lab = np.concatenate([lab, np.full(n_cl, LABEL_NOISE, np.int32)])
-        snr = np.concatenate([snr, np.full(n_cl, 12.0)])
+        mean_db = np.concatenate([mean_db, phys.detection_threshold_db + rng.exponential(3.0, n_cl)])
+        ext = np.concatenate([ext, np.zeros(n_cl)])
 
-    # ---- measurement noise growing off boresight
+    # ---- SNR, then errors that follow from it
     n = len(rng3)
-    r_n = rng3 + rng.normal(0, spec.range_sigma_m + 0.001 * rng3, n)
-    az_n = az + np.radians(rng.normal(0, 1, n) * _edge_sigma(spec.az_sigma_deg, az, spec.fov_az_deg))
-    el_n = el + np.radians(rng.normal(0, 1, n) * _edge_sigma(spec.el_sigma_deg, az, spec.fov_az_deg))
-    dop_n = doppler + rng.normal(0, 1, n) * _edge_sigma(spec.doppler_sigma_mps, az, spec.fov_az_deg)
-    snr_n = np.maximum(snr - 30.0 * np.log10(np.maximum(rng3, 1.0) / 10.0) + rng.normal(0, 2.0, n), 5.0)
+    snr = detected_snr(rng, mean_db, phys.detection_threshold_db)
+    weak = np.maximum(1.0, 10.0 ** ((SNR_REF_DB - snr) / 20.0))           # amplitude ratio below the reference
+    r_n = rng3 + rng.normal(0, 1, n) * (phys.range_sigma_m * weak + 0.001 * rng3)
+    dop_n = doppler + rng.normal(0, 1, n) * phys.doppler_sigma_mps * weak
+    d_az, d_el = draw_angle_errors(rng, snr, az, el, ext, phys, calibration)
+    az_n, el_n = az + d_az, el + d_el
+    snr_rep = np.maximum(snr + rng.normal(0, SNR_REPORT_SIGMA_DB, n), 0.0)
     pts = np.column_stack([r_n * np.cos(el_n) * np.sin(az_n), r_n * np.cos(el_n) * np.cos(az_n),
-                           r_n * np.sin(el_n), dop_n, snr_n]).astype(np.float32)
+                           r_n * np.sin(el_n), dop_n, snr_rep]).astype(np.float32)
     order = np.argsort(np.arctan2(pts[:, 0], pts[:, 1]), kind="stable")   # TI lists by range/azimuth bin
     return pts[order], lab[order]
 
@@ -202,11 +314,15 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _ghosts(rng, pts, vel, origin, wa, wb, prob):
-    """Mirror a random subset of vehicle points across the wall whose reflection path is valid."""
-    take = rng.random(len(pts)) < prob
-    pts, vel = pts[take], vel[take]
+    """Mirror a random subset of vehicle points across the wall whose reflection path is valid.
+
+    Returns ghost positions (G, 3), velocities (G, 2) and the index of each one's source point.
+    """
+    src = np.flatnonzero(rng.random(len(pts)) < prob)
+    none = (np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, int))
+    pts, vel = pts[src], vel[src]
     if len(pts) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 2))
+        return none
     d = wb - wa
     n = _unit(np.column_stack([-d[:, 1], d[:, 0]]))                  # (W, 2)
     off_p = np.einsum("wk,nwk->nw", n, pts[:, None, :2] - wa[None])  # signed distance of points
@@ -224,10 +340,10 @@ def _ghosts(rng, pts, vel, origin, wa, wb, prob):
     best = np.argmin(dist, axis=1)
     ok = np.isfinite(dist[np.arange(len(pts)), best])
     if not ok.any():
-        return np.zeros((0, 3)), np.zeros((0, 2))
+        return none
     idx = np.flatnonzero(ok)
     w = best[ok]
     gxy = mirror[idx, w]
     nv = n[w]
     gv = vel[idx] - 2 * np.einsum("nk,nk->n", vel[idx], nv)[:, None] * nv
-    return np.column_stack([gxy, pts[idx, 2]]), gv
+    return np.column_stack([gxy, pts[idx, 2]]), gv, src[idx]

@@ -17,9 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmatch.sim.camera import CameraSpec, camera_pose_from, observe_camera
+from mmatch.sim.camera import CameraResponse, CameraSpec, camera_pose_from, observe_camera
 from mmatch.sim.geometry import pose_matrix
-from mmatch.sim.radar import RadarSpec, observe_radar
+from mmatch.sim.physics import PhysicsFamily, PhysicsSample, family
+from mmatch.sim.radar import ArrayCalibration, RadarSpec, observe_radar
 from mmatch.sim.world import World, build_world
 from mmatch.types import CameraModel, Scene, View
 
@@ -38,19 +39,42 @@ class Mount:
     cam_pitch: float               # rad, positive looks down
     focal: float                   # px
     principal: tuple[float, float]
-    light_gain: float              # this camera's exposure/lighting (descriptor value scale)
+    response: CameraResponse       # this camera's exposure and colour response
     depth_sigma_rel: float         # monocular depth error of its detector
+    extrinsic_error: np.ndarray    # 4x4: the calibrated T_cam_radar is extrinsic_error @ the true one
+    calibration: ArrayCalibration  # the radar's angle calibration residual
 
 
-def draw_mount(rng: np.random.Generator, spec: CameraSpec) -> Mount:
+def _small_rigid(rng: np.random.Generator, max_rot_deg: float, max_trans_m: float) -> np.ndarray:
+    """A 4x4 rotation by up to max_rot_deg about a random axis and a shift of up to max_trans_m."""
+    axis = rng.normal(0, 1, 3)
+    axis /= np.linalg.norm(axis)
+    a = np.radians(rng.uniform(0, max_rot_deg))
+    Kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    T = np.eye(4)
+    T[:3, :3] = np.eye(3) + np.sin(a) * Kx + (1 - np.cos(a)) * Kx @ Kx
+    d = rng.normal(0, 1, 3)
+    T[:3, 3] = d / np.linalg.norm(d) * rng.uniform(0, max_trans_m)
+    return T
+
+
+def draw_mount(rng: np.random.Generator, spec: CameraSpec, phys: PhysicsSample, side: float = 1.0) -> Mount:
+    """One vehicle's sensor mounting under the scene's physics; side (+1 / -1) splits the two
+    cameras' colour-response difference between them."""
+    yaw_sigma = phys.radar_yaw_error_deg
     return Mount(radar_height=float(rng.uniform(0.4, 0.9)),
-                 radar_yaw_offset=float(np.radians(np.clip(rng.normal(0, 2.0), -5, 5))),
+                 radar_yaw_offset=float(np.radians(np.clip(rng.normal(0, yaw_sigma), -2.5 * yaw_sigma,
+                                                           2.5 * yaw_sigma))),
                  cam_offset=(float(rng.normal(0, 0.1)), float(rng.uniform(1.5, 2.2)), float(rng.uniform(0.5, 0.9))),
                  cam_pitch=float(np.radians(rng.uniform(0, 3))),
                  focal=float(rng.uniform(900, 1100)),
                  principal=(spec.width / 2 + float(rng.normal(0, 8)), spec.height / 2 + float(rng.normal(0, 8))),
-                 light_gain=float(rng.uniform(0.75, 1.2)),
-                 depth_sigma_rel=float(rng.uniform(0.05, 0.15)))
+                 response=CameraResponse(gain=float(rng.uniform(0.75, 1.2)), hue_shift=side * phys.camera_hue_shift / 2,
+                                         saturation_gain=float(phys.camera_saturation_gain ** (side / 2)),
+                                         pixels=int(phys.descriptor_pixels)),
+                 depth_sigma_rel=float(phys.depth_sigma_rel * rng.uniform(0.75, 1.25)),
+                 extrinsic_error=_small_rigid(rng, phys.extrinsic_rot_err_deg, phys.extrinsic_trans_err_m),
+                 calibration=ArrayCalibration.draw(rng, phys.calibration_residual_deg))
 
 
 @dataclass
@@ -80,13 +104,19 @@ class Scenario:
     """
 
     def __init__(self, seed: int, mode: str = "mixed", radar: RadarSpec = RadarSpec(),
-                 camera: CameraSpec = CameraSpec(), covisible: int = 0, tries: int = 20) -> None:
+                 camera: CameraSpec = CameraSpec(), covisible: int = 0, tries: int = 20,
+                 physics: str | PhysicsFamily | PhysicsSample = "nominal") -> None:
         if mode not in ("easy", "hard", "mixed"):
             raise ValueError(f"mode must be easy, hard or mixed, not {mode!r}")
         self.seed, self.mode, self.radar, self.cam = seed, mode, radar, camera
         self.covisible, self.tries = covisible, tries
+        if isinstance(physics, PhysicsSample):
+            self.phys = physics
+        else:
+            fam = physics if isinstance(physics, PhysicsFamily) else family(physics)
+            self.phys = fam.draw(np.random.default_rng([seed, 8]))
         rng = np.random.default_rng([seed, 7])
-        self.mounts = {role: draw_mount(rng, camera) for role in ROLES}
+        self.mounts = {role: draw_mount(rng, camera, self.phys, 1.0 if role == "ego" else -1.0) for role in ROLES}
         self._worlds: dict[int, World] = {}
         self._lock = threading.Lock()
         self._pending: dict[int, threading.Thread] = {}
@@ -136,7 +166,7 @@ class Scenario:
             m = self.mounts[role]
             _, _, got = observe_camera(world, t, w_T_r @ np.linalg.inv(T_cam_radar), cam.K, own,
                                        np.random.default_rng([self.seed, 5]), self.cam, m.depth_sigma_rel,
-                                       m.light_gain)
+                                       m.response, self.phys)
             ids.append(set(got[got >= 0].tolist()))
         return len(ids[0] & ids[1])
 
@@ -180,7 +210,7 @@ class Scenario:
         return pose_matrix(xy, veh.yaw[k] + m.radar_yaw_offset, m.radar_height), veh.velocity[k]
 
     def camera_model(self, role: str) -> tuple[CameraModel, np.ndarray]:
-        """The role's CameraModel and radar_T_camsensor-free pieces: (model, radar_T_cam)."""
+        """The role's CameraModel as calibrated (with the extrinsic error) and the true T_cam_radar."""
         m = self.mounts[role]
         # camera pose in the radar frame: vehicle axes are the radar axes turned back by the mount yaw
         veh_T_radar = pose_matrix(np.zeros(2), np.pi / 2 + m.radar_yaw_offset, 0.0)
@@ -188,7 +218,8 @@ class Scenario:
         veh_T_cam = camera_pose_from(veh_T_cams, m.cam_pitch)
         T_cam_radar = np.linalg.inv(veh_T_cam) @ veh_T_radar
         K = np.array([[m.focal, 0, m.principal[0]], [0, m.focal, m.principal[1]], [0, 0, 1.0]])
-        return CameraModel(K=K, image_size=(self.cam.width, self.cam.height), T_cam_radar=T_cam_radar), T_cam_radar
+        believed = m.extrinsic_error @ T_cam_radar
+        return CameraModel(K=K, image_size=(self.cam.width, self.cam.height), T_cam_radar=believed), T_cam_radar
 
     def observe(self, role: str, t: float) -> Observation:
         """Render `role`'s radar frame and camera detections at time t (s)."""
@@ -203,12 +234,12 @@ class Scenario:
                  rng: np.random.Generator) -> Observation:
         own = world.ego if role == "ego" else world.cav
         w_T_r, vel = self.radar_pose(world, role, t_local)
-        pts, labels = observe_radar(world, t_local, w_T_r, vel, own, rng, self.radar)
+        m = self.mounts[role]
+        pts, labels = observe_radar(world, t_local, w_T_r, vel, own, rng, self.radar, self.phys, m.calibration)
         cam, T_cam_radar = self.camera_model(role)
         w_T_cam = w_T_r @ np.linalg.inv(T_cam_radar)
-        m = self.mounts[role]
         boxes, feats, ids = observe_camera(world, t_local, w_T_cam, cam.K, own, rng, self.cam,
-                                           m.depth_sigma_rel, m.light_gain)
+                                           m.depth_sigma_rel, m.response, self.phys)
         v_radar = (w_T_r[:3, :3].T @ np.array([vel[0], vel[1], 0.0]))[:2]
         return Observation(points=pts, boxes=boxes, features=feats, camera=cam,
                            radar_height=m.radar_height, stamp=stamp, point_labels=labels,
@@ -220,9 +251,10 @@ def _lowest_priority() -> None:
     os.nice(19)
 
 
-def make_scenario(seed: int, mode: str = "mixed", covisible: int = 0) -> Scenario:
+def make_scenario(seed: int, mode: str = "mixed", covisible: int = 0,
+                  physics: str | PhysicsFamily | PhysicsSample = "nominal") -> Scenario:
     """The scenario of `seed` in `mode` ('easy', 'hard' or 'mixed'); see Scenario for covisible."""
-    return Scenario(seed, mode, covisible=covisible)
+    return Scenario(seed, mode, covisible=covisible, physics=physics)
 
 
 def _pairs(ego_ids: np.ndarray, cav_ids: np.ndarray) -> np.ndarray:
@@ -230,16 +262,25 @@ def _pairs(ego_ids: np.ndarray, cav_ids: np.ndarray) -> np.ndarray:
     return np.array(pairs, np.int32).reshape(-1, 2)
 
 
-def make_scene(seed: int, index: int, mode: str, min_pairs: int = 2, tries: int = 30) -> Scene:
+def make_scene(seed: int, index: int, mode: str, physics: str | PhysicsFamily = "nominal",
+               min_pairs: int = 2, tries: int = 30) -> Scene:
     """Scene `index` of the data set `seed`: an Ego/CAV frame pair with ground truth.
 
-    Each scene is its own episode with its own mounts. Draws are repeated (up to `tries`)
-    until both cameras detect at least `min_pairs` common vehicles, as in the paper's
-    evaluation set; the last draw is kept otherwise.
+    Each scene is its own episode with its own mounts and physics (drawn from `physics`).
+    A share `few_covisible_share` of the scenes is drawn with fewer than `min_pairs` common
+    detections (a truck between the two, a CAV turning away: real traffic has them), the
+    others with at least `min_pairs`, as in the paper's evaluation set; draws are repeated
+    up to `tries` times and the last kept otherwise. `meta` records the physics drawn and
+    the number of co-visible pairs.
     """
+    fam = physics if isinstance(physics, PhysicsFamily) else family(physics)
+    first = fam.draw(np.random.default_rng([seed, index, 77]))
+    want_few = bool(np.random.default_rng([seed, index, 78]).random() < first.few_covisible_share)
     scene = None
     for attempt in range(tries):
-        sc = Scenario(int(np.random.default_rng([seed, index, attempt]).integers(2**31)), mode)
+        sc_seed = int(np.random.default_rng([seed, index, attempt]).integers(2**31))
+        phys = first if attempt == 0 else fam.draw(np.random.default_rng([seed, index, attempt, 77]))
+        sc = Scenario(sc_seed, mode, physics=phys)
         world = sc.world(0)
         rng = np.random.default_rng([seed, index, attempt, 99])
         dt = float(rng.uniform(-FRAME_PERIOD_S / 2, FRAME_PERIOD_S / 2))
@@ -251,10 +292,11 @@ def make_scene(seed: int, index: int, mode: str, min_pairs: int = 2, tries: int 
         meta = dict(world.meta, seed=seed, index=index, attempt=attempt,
                     parked_ids=np.flatnonzero(world.vehicles.parked).tolist(),
                     ego_velocity=ego.velocity.tolist(), cav_velocity=cav.velocity.tolist(),
-                    difficulty=world.meta["mode"])
+                    difficulty=world.meta["mode"], physics=fam.name, physics_values=phys.as_dict(),
+                    covisible=int(len(pairs)))
         scene = Scene(ego=_view(ego), cav=_view(cav), gt_T_ego_cav=gt, gt_pairs=pairs, meta=meta,
                       name=f"scene_{index:05d}")
-        if len(pairs) >= min_pairs:
+        if (len(pairs) < min_pairs) == want_few:
             break
     return scene
 

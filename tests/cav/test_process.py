@@ -8,6 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mmatch.cav.config import BackgroundConfig, CavConfig
+from mmatch.cav.plausibility import duplicates
 from mmatch.cav.process import STAGES, CavInputError, process_view, run_view
 from mmatch.codec import decode, encode
 
@@ -25,9 +26,10 @@ def test_shared_frame_structure():
     assert set(ms) == set(STAGES) and all(v >= 0 for v in ms.values())
     assert frame.sender == "cav-1" and frame.seq == 3 and frame.stamp == 12.5
     V = frame.num_vehicles
-    assert V == len(f.boxes)                               # every box is a vehicle (min score 0)
-    np.testing.assert_array_equal(frame.vehicle_box_index, np.arange(V))
-    np.testing.assert_array_equal(frame.vehicle_features, f.features)
+    kept = np.flatnonzero(~duplicates(f.boxes))           # every box but second detections of one vehicle
+    assert V == len(kept)
+    np.testing.assert_array_equal(frame.vehicle_box_index, kept)
+    np.testing.assert_array_equal(frame.vehicle_features, f.features[kept])
     assert frame.vehicle_centers.shape == (V, 2) and frame.vehicle_points.shape[1] == 5
     assert np.all(np.diff(frame.vehicle_index) >= 0)      # grouped by vehicle
     assert frame.vehicle_index.max() < V
@@ -131,7 +133,7 @@ def test_encoded_frame_is_small():
 def test_empty_and_degenerate_frames_never_raise():
     f = make_frame(0)
     frame, ms = process_view(np.zeros((0, 5), np.float32), f.boxes, f.features, f.camera, 0.8, 1.0)
-    assert frame.num_vehicles == len(f.boxes) and len(frame.vehicle_points) == 0
+    assert frame.num_vehicles == int((~duplicates(f.boxes)).sum()) and len(frame.vehicle_points) == 0
     assert np.all(np.isnan(frame.ego_velocity)) and set(ms) == set(STAGES)
     assert np.all(np.isfinite(frame.vehicle_centers))      # from box bearing and depth
     frame, _ = process_view(f.points, np.zeros((0, 6), np.float32), np.zeros((0, 32), np.float32),
