@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres
+from mmatch.ego.confidence import ConfidenceConfig, assess, threshold
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
 from mmatch.ego.track import TrackConfig, Tracker
@@ -24,6 +25,7 @@ class FusionConfig:
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
     track: TrackConfig = TrackConfig(max_age_s=0.0)
+    confidence: ConfidenceConfig = ConfidenceConfig()
 
 
 @dataclass
@@ -40,7 +42,10 @@ class FusionResult:
     estimate lies within 2 m / 5 deg of the truth (NaN when there is no estimate);
     covariance: float64 (3, 3) of (x m, y m, yaw rad) in the Ego radar frame, or None;
     ambiguity: the best distinct alternative's score relative to the chosen one (0: none,
-    1: as good), NaN when unknown.
+    1: as good), NaN when unknown. An estimate whose confidence is below the configured
+    threshold is refused: status "no-estimate", T_ego_cav None, the reason what weighs most
+    against it, our own objects only; its confidence, covariance and evidence stay.
+    evidence: the features behind the confidence (see ego/confidence.py).
     """
 
     status: str
@@ -52,6 +57,7 @@ class FusionResult:
     confidence: float = float("nan")
     covariance: np.ndarray | None = None
     ambiguity: float = float("nan")
+    evidence: dict = field(default_factory=dict)
 
 
 class Fuser:
@@ -63,6 +69,8 @@ class Fuser:
         self.aligner = get_aligner(config.aligner)
         self.tracker = Tracker(config.track)
         self.descriptor_scale = RunningDescriptorScale()
+        self._scorer = get_matcher("consensus")
+        self._threshold = threshold(config.confidence)
 
     def fuse(self, own: SharedFrame, other: SharedFrame | None,
              context: MatchContext | None = None) -> FusionResult:
@@ -99,9 +107,20 @@ class Fuser:
         if aligned.T is None:
             return FusionResult("no-estimate", aligned.reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings)
+        scale = match.descriptor_scale
+
+        def scorer(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+            return self._scorer.score(own, other, R, t, scale)
+
+        a = assess(own, other, aligned.T, match.pairs, match, scorer, self.config.confidence)
+        timings["confidence"] = (time.perf_counter() - t2) * 1e3
+        sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features)
+        if a.confidence < self._threshold:
+            return FusionResult("no-estimate", a.reason, pairs=np.zeros((0, 2), np.int32), objects=own_objs,
+                                timings=timings, **sure)
         self.tracker.update(own, other, aligned.T, len(match.pairs), predicted, full_search=not quick)
         return FusionResult("fused", "tracked" if tracked else "", aligned.T, match.pairs,
-                            merge_objects(own, other, aligned.T, match.pairs), timings)
+                            merge_objects(own, other, aligned.T, match.pairs), timings, **sure)
 
 
 def fuse(own: SharedFrame, other: SharedFrame | None, config: FusionConfig | None = None) -> FusionResult:

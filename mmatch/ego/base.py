@@ -34,12 +34,27 @@ class MatchResult:
 
     T_hint: a coarse CAV -> Ego transform when the matcher found one on the way (4x4), else None.
     descriptor_scale: the factor the matcher put on descriptor distances (for the aligner).
+    hypotheses: the refined hypotheses and their scores (for the ambiguity of the answer).
     """
 
     pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int32))
     scores: np.ndarray = field(default_factory=lambda: np.zeros(0))
     T_hint: np.ndarray | None = None
     descriptor_scale: float = 1.0
+    hypotheses: Hypotheses | None = None
+
+
+@dataclass
+class Hypotheses:
+    """Transform hypotheses a matcher weighed, for the confidence of its answer.
+
+    R: (H, 2, 2), t: (H, 2) other -> own planar transforms; score: (H,) the matcher's
+    evidence for each (higher is better, same units across one frame pair).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    score: np.ndarray
 
 
 @dataclass

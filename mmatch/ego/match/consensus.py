@@ -15,7 +15,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import MatchContext, MatchResult, heading_yaws, road_speed_consistency
+from mmatch.ego.base import Hypotheses, MatchContext, MatchResult, heading_yaws, road_speed_consistency
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
@@ -125,7 +125,26 @@ class ConsensusMatcher:
             veto = speed[int(np.argmin(_yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
         pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto, _scores(own, cfg), _scores(other, cfg))
         T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
-        return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T, descriptor_scale=scale)
+        return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T, descriptor_scale=scale,
+                           hypotheses=Hypotheses(Rr, tr, total))
+
+    def score(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
+              descriptor_scale: float = 1.0) -> np.ndarray:
+        """(H,) this matcher's evidence for hypotheses R (H, 2, 2), t (H, 2) of the other -> own
+        transform: vehicle consensus plus weighted background agreement (no track prior)."""
+        cfg = self.cfg
+        A, B = observe(own, cfg.observation), observe(other, cfg.observation)
+        if len(R) == 0:
+            return np.zeros(0)
+        bg_own, bg_other = own.background[:, :2], other.background[:, :2]
+        tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
+        bg = cfg.background_weight * _background_scores(bg_own, bg_other, R, t, cfg, tree)
+        if len(A.centres) == 0 or len(B.centres) == 0:
+            return bg
+        D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
+        alike_of = _likeness(D, heading_yaws(own, other), road_speed_consistency(own, other), cfg,
+                             _confidence(own, cfg), _confidence(other, cfg))
+        return _vehicle_scores(A, B, alike_of(R), R, t, cfg) + bg
 
 
 def _prior_agreement(R: np.ndarray, t: np.ndarray, prior: np.ndarray, cfg: ConsensusConfig) -> np.ndarray:
