@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "run": "mmatch.edge.commands.run",
     "replay": "mmatch.edge.commands.replay",
     "record": "mmatch.edge.commands.record",
+    "fit-confidence": "mmatch.edge.commands.fit_confidence",
     "config": "mmatch.edge.commands.config",
     "router": "mmatch.edge.commands.router",
     "export": "mmatch.edge.commands.export",

@@ -19,7 +19,7 @@ import numpy as np
 
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER
 from mmatch.errors import MMatchError, SceneFormatError
-from mmatch.metrics import is_success, pair_counts, rre_deg, rte_m, summary
+from mmatch.metrics import is_gross, is_success, pair_counts, rre_deg, rte_m, summary
 from mmatch.types import Scene
 
 log = logging.getLogger(__name__)
@@ -32,22 +32,27 @@ class EvalConfig:
 
     descriptor_scale: factor on appearance-descriptor distances (ego/descriptor_scale.py);
     None: `evaluate_dir` measures it on the folder (no labels used), a single scene uses 1.
+    confidence_threshold: estimates less sure than this are "no estimate" (None: the fitted
+    model's threshold; 0: every estimate is emitted).
     """
 
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
     cav: str = "pipeline"
     descriptor_scale: float | None = None
+    confidence_threshold: float | None = None
 
 
 _FUSERS: dict = {}
 
 
 def _fuser(cfg: EvalConfig):
+    from mmatch.ego.confidence import ConfidenceConfig
     from mmatch.fusion import FusionConfig, Fuser
-    key = (cfg.matcher, cfg.aligner)
+    key = (cfg.matcher, cfg.aligner, cfg.confidence_threshold)
     if key not in _FUSERS:
-        _FUSERS[key] = Fuser(FusionConfig(matcher=cfg.matcher, aligner=cfg.aligner))
+        _FUSERS[key] = Fuser(FusionConfig(matcher=cfg.matcher, aligner=cfg.aligner,
+                                          confidence=ConfidenceConfig(threshold=cfg.confidence_threshold)))
     return _FUSERS[key]
 
 
@@ -89,9 +94,42 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> dict:
            "stages_ms": stages, "rre_deg": None, "rte_m": None, "success": False}
     out["box_pairs"] = box_pairs.astype(int).tolist()
     out["T_ego_cav"] = None
+    out.update(_sureness(scene, result))
     if result.T_ego_cav is not None:
         rre, rte = rre_deg(scene.gt_T_ego_cav, result.T_ego_cav), rte_m(scene.gt_T_ego_cav, result.T_ego_cav)
         out.update(rre_deg=rre, rte_m=rte, success=is_success(rre, rte), T_ego_cav=result.T_ego_cav.tolist())
+    return out
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if x is not None and np.isfinite(x) else None
+
+
+def _sureness(scene: Scene, result) -> dict:
+    """Per-scene confidence fields: confidence, covariance, evidence, and for the estimate (or
+    the refused one) its (x, y, yaw) error, whether its 95 % ellipse holds the truth, and
+    whether it is gross (RRE > 10 deg or RTE > 5 m)."""
+    from mmatch.ego.confidence import inside_ellipse, pose_error
+    out = {"confidence": _finite_or_none(result.confidence),
+           "covariance": None if result.covariance is None else np.asarray(result.covariance).tolist(),
+           "evidence": {k: float(v) for k, v in result.evidence.items()},
+           "candidate": None}
+    T = result.T_ego_cav if result.T_ego_cav is not None else result.refused_T
+    if T is not None:
+        rre, rte = rre_deg(scene.gt_T_ego_cav, T), rte_m(scene.gt_T_ego_cav, T)
+        err = pose_error(scene.gt_T_ego_cav, T)
+        inside = bool(result.covariance is not None and inside_ellipse(err, np.asarray(result.covariance)))
+        out["candidate"] = {"rre_deg": rre, "rte_m": rte, "success": is_success(rre, rte),
+                            "gross": is_gross(rre, rte), "error": err.tolist(), "inside_95": inside,
+                            "emitted": result.T_ego_cav is not None}
+    out["alternatives"] = []
+    for Tc, a in result.candidates:
+        rre, rte = rre_deg(scene.gt_T_ego_cav, Tc), rte_m(scene.gt_T_ego_cav, Tc)
+        out["alternatives"].append({"success": is_success(rre, rte), "gross": is_gross(rre, rte),
+                                    "confidence": _finite_or_none(a.confidence),
+                                    "evidence": {k: float(v) for k, v in a.features.items()},
+                                    "error": pose_error(scene.gt_T_ego_cav, Tc).tolist(),
+                                    "covariance": np.asarray(a.covariance).tolist()})
     return out
 
 
@@ -187,8 +225,59 @@ def report(results: list[dict], cfg: EvalConfig) -> dict:
             "stages": {s: {"median": float(np.median([r["stages_ms"][s] for r in ok if s in r["stages_ms"]]))}
                        for s in stage_names}},
         "no_estimate": sum(r["status"] != "fused" for r in ok),
+        **sureness_report(ok),
+        "by_covisible": {name: _subset(rows) for name, rows in
+                         (("lt2", [r for r in ok if r["gt_pairs"] < 2]), ("ge2", [r for r in ok if r["gt_pairs"] >= 2]))},
         "config": asdict(cfg),
     }
+
+
+COVERAGE_LEVELS = (0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+
+
+def sureness_report(ok: list[dict]) -> dict:
+    """coverage, gross_rate (among emitted), calibration (95 % ellipse holds the truth, among
+    emitted) and risk_coverage: every candidate estimate (emitted or refused for its
+    confidence) ranked by confidence, the gross rate and success among the most confident
+    ones that cover a share c of all scenes, c = 0.5 ... 1.0 (levels the candidates cannot
+    reach are left out)."""
+    n = len(ok)
+    emitted = [r for r in ok if r.get("candidate") and r["candidate"]["emitted"]]
+    gross = [r["candidate"]["gross"] for r in emitted]
+    inside = [r["candidate"]["inside_95"] for r in emitted]
+    cands = [r for r in ok if r.get("candidate")]
+    conf = np.array([r["confidence"] if r.get("confidence") is not None else -1.0 for r in cands])
+    order = np.argsort(-conf, kind="stable")
+    curve = []
+    for c in COVERAGE_LEVELS:
+        k = int(np.ceil(c * n - 1e-9))
+        if k == 0 or k > len(cands):
+            continue
+        top = [cands[i]["candidate"] for i in order[:k]]
+        curve.append({"coverage": c, "gross_rate": float(np.mean([x["gross"] for x in top])),
+                      "success_rate": float(np.mean([x["success"] for x in top])),
+                      "min_confidence": float(conf[order[k - 1]])})
+    return {"coverage": len(emitted) / n if n else 0.0,
+            "gross_rate": float(np.mean(gross)) if gross else 0.0,
+            "calibration": float(np.mean(inside)) if inside else float("nan"),
+            "risk_coverage": curve}
+
+
+def _subset(rows: list[dict]) -> dict:
+    """Scenes, success, coverage, gross rate among emitted and the share safe (no estimate or a success)."""
+    n = len(rows)
+    emitted = [r for r in rows if r["status"] == "fused"]
+    return {"scenes": n,
+            "success_rate": float(np.mean([r["success"] for r in rows])) if n else float("nan"),
+            "coverage": len(emitted) / n if n else float("nan"),
+            "gross_rate": float(np.mean([is_gross(r["rre_deg"], r["rte_m"]) for r in emitted if r["rte_m"] is not None]))
+            if emitted else 0.0,
+            "safe_rate": float(np.mean([r["status"] != "fused" or r["success"] for r in rows])) if n else float("nan")}
+
+
+def _subset_line(sub: dict) -> str:
+    return (f"{sub['scenes']} scenes, success {sub['success_rate']:.3f}, coverage {sub['coverage']:.3f}, "
+            f"no estimate or right {sub['safe_rate']:.3f}")
 
 
 def format_table(rep: dict) -> str:
@@ -207,6 +296,12 @@ def format_table(rep: dict) -> str:
         f"payload bytes: median {rep['payload_bytes']['median']:.0f}  max {rep['payload_bytes']['max']:.0f}",
         f"latency ms: total median {rep['latency_ms']['total']['median']:.1f}  "
         f"p90 {rep['latency_ms']['total']['p90']:.1f}",
+        f"coverage {rep['coverage']:.3f}  gross among emitted {rep['gross_rate']:.3f}  "
+        f"95 % ellipse holds the truth {rep['calibration']:.3f}",
+        "risk-coverage: " + "  ".join(f"{x['coverage']:.1f}: gross {x['gross_rate']:.3f} success {x['success_rate']:.3f}"
+                                      for x in rep["risk_coverage"]),
+        "fewer than two co-visible: " + _subset_line(rep["by_covisible"]["lt2"])
+        + "; two or more: " + _subset_line(rep["by_covisible"]["ge2"]),
         "  " + "  ".join(f"{k} {v['median']:.2f}" for k, v in rep["latency_ms"]["stages"].items()),
     ]
     return "\n".join(lines)

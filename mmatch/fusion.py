@@ -8,7 +8,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres
-from mmatch.ego.confidence import ConfidenceConfig, assess, threshold
+from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, threshold
+from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
 from mmatch.ego.track import TrackConfig, Tracker
@@ -45,7 +46,9 @@ class FusionResult:
     1: as good), NaN when unknown. An estimate whose confidence is below the configured
     threshold is refused: status "no-estimate", T_ego_cav None, the reason what weighs most
     against it, our own objects only; its confidence, covariance and evidence stay.
-    evidence: the features behind the confidence (see ego/confidence.py).
+    evidence: the features behind the confidence (see ego/confidence.py); refused_T: the
+    estimate that was refused (for evaluation only; never publish it); candidates: every
+    transform the arbiter weighed with its Assessment (for evaluation and fitting).
     """
 
     status: str
@@ -58,6 +61,8 @@ class FusionResult:
     covariance: np.ndarray | None = None
     ambiguity: float = float("nan")
     evidence: dict = field(default_factory=dict)
+    refused_T: np.ndarray | None = None
+    candidates: list = field(default_factory=list)
 
 
 class Fuser:
@@ -107,20 +112,42 @@ class Fuser:
         if aligned.T is None:
             return FusionResult("no-estimate", aligned.reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings)
+        T, a, cands = self._arbitrate(own, other, match, aligned)
+        timings["confidence"] = (time.perf_counter() - t2) * 1e3
+        confidence = a.confidence
+        if self.tracker.agrees(T, predicted):         # the track's own evidence carries over
+            confidence = float(np.fmax(confidence, self.tracker.confidence(other)))
+        sure = dict(confidence=confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
+                    candidates=cands)
+        if confidence < self._threshold:
+            return FusionResult("no-estimate", a.reason, pairs=np.zeros((0, 2), np.int32), objects=own_objs,
+                                timings=timings, refused_T=T, **sure)
+        self.tracker.update(own, other, T, len(match.pairs), predicted, full_search=not quick,
+                            confidence=confidence)
+        return FusionResult("fused", "tracked" if tracked else "", T, match.pairs,
+                            merge_objects(own, other, T, match.pairs), timings, **sure)
+
+    def _arbitrate(self, own: SharedFrame, other: SharedFrame, match: MatchResult, aligned: AlignResult):
+        """The aligner's candidates rated by the confidence model; the most probable one wins.
+
+        Returns T (4x4), its Assessment, and every candidate as (T, Assessment) for evaluation.
+        """
         scale = match.descriptor_scale
 
         def scorer(R: np.ndarray, t: np.ndarray) -> np.ndarray:
             return self._scorer.score(own, other, R, t, scale)
 
-        a = assess(own, other, aligned.T, match.pairs, match, scorer, self.config.confidence)
-        timings["confidence"] = (time.perf_counter() - t2) * 1e3
-        sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features)
-        if a.confidence < self._threshold:
-            return FusionResult("no-estimate", a.reason, pairs=np.zeros((0, 2), np.int32), objects=own_objs,
-                                timings=timings, **sure)
-        self.tracker.update(own, other, aligned.T, len(match.pairs), predicted, full_search=not quick)
-        return FusionResult("fused", "tracked" if tracked else "", aligned.T, match.pairs,
-                            merge_objects(own, other, aligned.T, match.pairs), timings, **sure)
+        ctx = PairContext(own, other, scorer, self.config.confidence)
+        if aligned.candidates is not None and len(aligned.candidates[0]):
+            R, t = aligned.candidates
+        else:
+            R, t = aligned.T[None, :2, :2], aligned.T[None, :2, 3]
+        rated = assess_many(ctx, R, t, match.pairs, match)
+        p = np.array([x.confidence for x in rated])
+        k = int(np.nanargmax(p)) if np.isfinite(p).any() else 0
+        dz = aligned.T[2, 3]
+        Ts = [se2_to_matrix(R[h], t[h], dz) for h in range(len(R))]
+        return Ts[k], rated[k], list(zip(Ts, rated))
 
 
 def fuse(own: SharedFrame, other: SharedFrame | None, config: FusionConfig | None = None) -> FusionResult:

@@ -26,8 +26,17 @@ def rte_m(T_gt: np.ndarray, T_est: np.ndarray) -> float:
     return float(np.linalg.norm(T_gt[:3, 3] - T_est[:3, 3]))
 
 
+GROSS_RRE_DEG = 10.0
+GROSS_RTE_M = 5.0
+
+
 def is_success(rre: float, rte: float) -> bool:
     return rre < SUCCESS_RRE_DEG and rte < SUCCESS_RTE_M
+
+
+def is_gross(rre: float, rte: float) -> bool:
+    """A grossly wrong estimate: RRE > 10 deg or RTE > 5 m (DESIGN.md)."""
+    return rre > GROSS_RRE_DEG or rte > GROSS_RTE_M
 
 
 def pair_counts(pred: np.ndarray, gt: np.ndarray) -> tuple[int, int, int]:

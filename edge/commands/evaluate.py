@@ -26,6 +26,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--descriptor-scale", type=_scale, default=None, metavar="auto|FACTOR",
                    help="factor on appearance-descriptor distances; auto (default): measured on the "
                         "folder without labels; 1: as the files have them")
+    p.add_argument("--confidence-threshold", type=_probability, default=None, metavar="P",
+                   help="estimates less sure than P (0-1) are 'no estimate'; default: the fitted model's "
+                        "threshold; 0 emits every estimate")
+
+
+def _probability(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in 0-1, got {text!r}") from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in 0-1, got {text!r}")
+    return v
 
 
 def _scale(text: str) -> float | None:
@@ -54,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     if why:
         raise ConfigError(why)
     cfg = EvalConfig(matcher=args.matcher, aligner=args.aligner, cav=args.cav,
-                     descriptor_scale=args.descriptor_scale)
+                     descriptor_scale=args.descriptor_scale, confidence_threshold=args.confidence_threshold)
     rep, results = evaluate_dir(args.folder, cfg, args.jobs, Progress("eval"))
     for r in results:
         if "rejected" in r:

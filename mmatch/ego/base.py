@@ -59,11 +59,16 @@ class Hypotheses:
 
 @dataclass
 class AlignResult:
-    """T_ego_cav (4x4) or None with the reason; inlier_share of the background fit."""
+    """T_ego_cav (4x4) or None with the reason; inlier_share of the background fit.
+
+    candidates: the distinct refined transforms the aligner weighed, its own choice first
+    (R (K, 2, 2), t (K, 2) other -> own), for an arbiter that knows more (ego/confidence.py).
+    """
 
     T: np.ndarray | None
     reason: str = ""
     inlier_share: float = 0.0
+    candidates: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def vehicle_centroids(frame: SharedFrame) -> np.ndarray:

@@ -87,7 +87,7 @@ class ConfidenceConfig:
     camera_range_m: float = 60.0
     body_offset_m: float = 2.3
     max_speed_mps: float = 40.0
-    slides_m: tuple[float, ...] = (-30.0, -20.0, -12.0, -6.0, 6.0, 12.0, 20.0, 30.0)
+    slides_m: tuple[float, ...] = (-24.0, -9.0, 9.0, 24.0)
     inflation: float | None = None
     model_path: str | None = None
     observation: ObservationModel = field(default_factory=ObservationModel)
@@ -189,99 +189,172 @@ def inside_ellipse(error: np.ndarray, cov: np.ndarray, level: float = CHI2_3_95)
         return False
 
 
-def _normals(pts: np.ndarray, tree: cKDTree, k: int = 6) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (N, 2) of a 2-D point set's local lines and their linearity (N,) in 0-1."""
+def _normals(pts: np.ndarray, tree: cKDTree, k: int = 16, radius_m: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (N, 2) of a 2-D point set's local lines and their linearity (N,) in 0-1.
+
+    Local means the neighbours within radius_m (up to k): wide enough that angle noise
+    across a guardrail (0.5-1 m at 40 m) does not hide that it is a line.
+    """
     kk = min(k, len(pts))
-    _, idx = tree.query(pts, k=kk)
-    nb = pts[np.atleast_2d(idx)] if kk > 1 else pts[:, None]
-    d = nb - nb.mean(axis=1, keepdims=True)
-    C = np.einsum("nki,nkj->nij", d, d) / max(kk, 1)
+    d, idx = tree.query(pts, k=kk, distance_upper_bound=radius_m)
+    d, idx = np.asarray(d).reshape(len(pts), kk), np.asarray(idx).reshape(len(pts), kk)
+    ok = np.isfinite(d)
+    nb = pts[np.where(ok, idx, 0)]
+    cnt = np.maximum(ok.sum(axis=1), 1)[:, None]
+    mean = (nb * ok[..., None]).sum(axis=1) / cnt
+    dd = (nb - mean[:, None]) * ok[..., None]
+    C = np.einsum("nki,nkj->nij", dd, dd) / cnt[..., None]
     w, v = np.linalg.eigh(C)                                   # ascending
-    normal = v[:, :, 0]
-    lin = 1.0 - w[:, 0] / np.maximum(w[:, 1], 1e-9)
-    return normal, np.clip(lin, 0.0, 1.0)
+    lin = np.where(ok.sum(axis=1) >= 3, 1.0 - w[:, 0] / np.maximum(w[:, 1], 1e-9), 0.0)
+    return v[:, :, 0], np.clip(lin, 0.0, 1.0)
 
 
-def information(own: SharedFrame, other: SharedFrame, A: Observations, B: Observations,
-                R: np.ndarray, t: np.ndarray, pairs: np.ndarray, cfg: ConfidenceConfig
-                ) -> tuple[np.ndarray, float, int, float]:
-    """Information matrix (3, 3) of (x, y, yaw) at the estimate, the residual chi^2, its
-    degrees of freedom and the mean matched-pair chi^2."""
-    info = np.zeros((3, 3))
-    chi2, dof, pair_chi2 = 0.0, 0, 0.0
+class PairContext:
+    """What the evidence of any hypothesis for one frame pair needs, computed once.
+
+    own / other: the two shared frames; scorer: callable (R (H, 2, 2), t (H, 2)) -> (H,)
+    the matcher's evidence (None: no ambiguity figure).
+    """
+
+    def __init__(self, own: SharedFrame, other: SharedFrame, scorer=None,
+                 cfg: ConfidenceConfig = ConfidenceConfig()) -> None:
+        self.own, self.other, self.scorer, self.cfg = own, other, scorer, cfg
+        self.A, self.B = observe(own, cfg.observation), observe(other, cfg.observation)
+        self.bg_own = own.background[:, :2].astype(float)
+        self.bg_other = other.background[:, :2].astype(float)
+        self.tree_own = cKDTree(self.bg_own) if len(self.bg_own) >= 3 else None
+        self.tree_other = cKDTree(self.bg_other) if len(self.bg_other) >= 3 else None
+        if self.tree_own is not None:
+            self.normal, self.linear = _normals(self.bg_own, self.tree_own)
+        self.yaws = heading_yaws(own, other)
+        self.ge, self.ue = radial_ground_speeds(own)
+        self.gc, self.uc = radial_ground_speeds(other)
+        ours = np.vstack([self.bg_own, own.vehicle_points[:, :2]]).astype(float)
+        self.free = _FreeSpace(ours) if len(ours) >= 5 else None
+        if len(self.bg_own) >= 3:
+            d = self.bg_own - self.bg_own.mean(axis=0)
+            self.main_axis = np.linalg.eigh(d.T @ d)[1][:, 1]
+        else:
+            self.main_axis = None
+
+
+class _FreeSpace:
+    """Our radar's farthest return per 1-deg bearing bin, and a tree of everything it saw."""
+
+    def __init__(self, ours: np.ndarray, bin_deg: float = 1.0) -> None:
+        self.az = np.degrees(np.arctan2(ours[:, 0], ours[:, 1]))
+        self.lo, self.hi, self.bin = float(self.az.min()), float(self.az.max()), bin_deg
+        nb = int(np.ceil((self.hi - self.lo) / bin_deg)) + 1
+        self.far = np.zeros(nb)
+        np.maximum.at(self.far, np.clip(((self.az - self.lo) / bin_deg).astype(int), 0, nb - 1),
+                      np.linalg.norm(ours, axis=1))
+        self.tree = cKDTree(ours)
+
+    def violation(self, theirs: np.ndarray, near_m: float = 2.0, margin_m: float = 3.0) -> np.ndarray:
+        """(H,) share of the other background (H, N, 2), in our frame and view, lying where we see past it."""
+        H, N = theirs.shape[:2]
+        flat = theirs.reshape(-1, 2)
+        az = np.degrees(np.arctan2(flat[:, 0], flat[:, 1]))
+        r = np.linalg.norm(flat, axis=1)
+        inside = (az >= self.lo) & (az <= self.hi) & (r > 3.0)
+        b = np.clip(((az - self.lo) / self.bin).astype(int), 0, len(self.far) - 1)
+        d, _ = self.tree.query(flat, distance_upper_bound=near_m)
+        bad = inside & (self.far[b] > r + margin_m) & ~np.isfinite(d)
+        n_in = inside.reshape(H, N).sum(axis=1)
+        return np.where(n_in >= 5, bad.reshape(H, N).sum(axis=1) / np.maximum(n_in, 1), 0.0)
+
+
+def _information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per hypothesis (H): information matrix (3, 3) of (x, y, yaw), residual chi^2, its degrees
+    of freedom, and the mean matched-pair chi^2."""
+    cfg, A, B = ctx.cfg, ctx.A, ctx.B
+    H = len(R)
+    info = np.zeros((H, 3, 3))
+    chi2, dof, pair_chi2 = np.zeros(H), np.zeros(H), np.zeros(H)
     if len(pairs):
-        dm = mahalanobis(A, B, R[None], t[None])[0][pairs[:, 0], pairs[:, 1]]
-        for (i, j) in pairs:
-            b = B.centres[j]
-            S = A.cov[i] + R @ B.cov[j] @ R.T
-            r = A.centres[i] - (R @ b + t)
-            J = np.column_stack([np.eye(2), R @ np.array([-b[1], b[0]])])     # d(Rb + t)/d(x, y, yaw)
-            W = np.linalg.inv(S)
-            info += J.T @ W @ J
-        pair_chi2 = float(np.mean(dm ** 2))
-        chi2 += float(np.sum(np.minimum(dm ** 2, 25.0)))
+        i, j = pairs[:, 0], pairs[:, 1]
+        dm = mahalanobis(A, B, R, t)[:, i, j]                                   # (H, P)
+        b = B.centres[j]
+        S = A.cov[i][None] + np.einsum("hab,pbc,hdc->hpad", R, B.cov[j], R)      # (H, P, 2, 2)
+        Jy = np.einsum("hab,pb->hpa", R, np.column_stack([-b[:, 1], b[:, 0]]))   # (H, P, 2)
+        J = np.concatenate([np.broadcast_to(np.eye(2), (H, len(pairs), 2, 2)), Jy[..., None]], axis=3)
+        W = np.linalg.inv(S)
+        info += np.einsum("hpai,hpab,hpbj->hij", J, W, J)
+        pair_chi2 = np.mean(dm ** 2, axis=1)
+        chi2 += np.sum(np.minimum(dm ** 2, 25.0), axis=1)
         dof += 2 * len(pairs)
-    bg_own, bg_other = own.background[:, :2].astype(float), other.background[:, :2].astype(float)
-    if len(bg_own) >= 3 and len(bg_other) >= 3:
-        tree = cKDTree(bg_own)
-        moved = bg_other @ R.T + t
-        d, k = tree.query(moved, distance_upper_bound=cfg.bg_gate_m)
+    if ctx.tree_own is not None and len(ctx.bg_other) >= 3:
+        src = ctx.bg_other
+        moved = np.einsum("hab,nb->hna", R, src) + t[:, None]                    # (H, N, 2)
+        d, k = ctx.tree_own.query(moved.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
+        d, k = d.reshape(H, -1), k.reshape(H, -1)
         ok = np.isfinite(d)
-        if ok.sum() >= 3:
-            normal, lin = _normals(bg_own, tree)
-            q, n, li = bg_own[k[ok]], normal[k[ok]], lin[k[ok]]
-            src, mv = bg_other[ok], moved[ok]
-            cells = np.unique(np.floor(mv / cfg.bg_cell_m).astype(np.int64), axis=0)
-            w = len(cells) / len(src) / cfg.bg_sigma_m ** 2
-            dpdyaw = np.column_stack([-src[:, 1], src[:, 0]]) @ R.T            # (M, 2)
-            J = np.concatenate([np.broadcast_to(np.eye(2), (len(src), 2, 2)), dpdyaw[:, :, None]], axis=2)
-            # point-to-line where the own background is a line, point-to-point where it is not
-            P = li[:, None, None] * np.einsum("ni,nj->nij", n, n) + (1 - li)[:, None, None] * np.eye(2)
-            info += w * np.einsum("nki,nkl,nlj->ij", J, P, J)
-            r = q - mv
-            chi2 += float(w * np.sum(np.einsum("ni,nij,nj->n", r, P, r)))
-            dof += len(cells)
-    yaws = heading_yaws(own, other)
-    if yaws is not None:
-        gap = np.abs(_wrap(_yaw(R) - yaws)).min()
-        if gap < np.radians(cfg.heading_gate_deg):
-            info[2, 2] += np.radians(cfg.heading_sigma_deg) ** -2
+        kk = np.where(ok, k, 0)
+        n, li = ctx.normal[kk], np.where(ok, ctx.linear[kk], 0.0)
+        line = (li >= 0.5)[..., None, None]
+        P = np.where(line, np.einsum("hni,hnj->hnij", n, n), (1 - li)[..., None, None] * np.eye(2))
+        P = P * ok[..., None, None]
+        cells = np.array([len(np.unique(np.floor(moved[h][ok[h]] / cfg.bg_cell_m).astype(np.int64), axis=0))
+                          for h in range(H)], float)
+        n_ok = ok.sum(axis=1)
+        w = np.where(n_ok >= 3, cells / np.maximum(n_ok, 1), 0.0) / cfg.bg_sigma_m ** 2
+        Jy = np.einsum("hab,nb->hna", R, np.column_stack([-src[:, 1], src[:, 0]]))
+        J = np.concatenate([np.broadcast_to(np.eye(2), (H, len(src), 2, 2)), Jy[..., None]], axis=3)
+        info += w[:, None, None] * np.einsum("hnai,hnab,hnbj->hij", J, P, J)
+        r = ctx.bg_own[kk] - moved
+        chi2 += w * np.einsum("hni,hnij,hnj->h", r, P, r)
+        dof += np.where(n_ok >= 3, cells, 0.0)
+    if ctx.yaws is not None:
+        gap = np.abs(_wrap(_yaw(R)[:, None] - ctx.yaws)).min(axis=1)
+        info[:, 2, 2] += np.where(gap < np.radians(cfg.heading_gate_deg), np.radians(cfg.heading_sigma_deg) ** -2, 0)
     return info, chi2, dof, pair_chi2
 
 
-def covariance(info: np.ndarray, chi2: float, dof: int, inflation: float) -> np.ndarray:
-    """(3, 3) covariance from an information matrix, inflated by the residuals (chi^2 / dof
+def covariances(info: np.ndarray, chi2: np.ndarray, dof: np.ndarray, inflation: float) -> np.ndarray:
+    """(H, 3, 3) covariances from information matrices, inflated by the residuals (chi^2 / dof
     when above 1) and by `inflation`; unobserved directions get a huge variance."""
-    reg = info + np.diag([1e-4, 1e-4, 1e-6])                 # a prior of 100 m / 1000 rad
-    cov = np.linalg.inv(reg)
-    s2 = max(1.0, chi2 / dof) if dof > 3 else 1.0
-    return (cov + cov.T) / 2 * s2 * inflation
+    cov = np.linalg.inv(info + np.diag([1e-4, 1e-4, 1e-6]))          # a prior of 100 m / 1000 rad
+    s2 = np.where(dof > 3, np.maximum(1.0, chi2 / np.maximum(dof, 1)), 1.0)
+    return (cov + np.swapaxes(cov, 1, 2)) / 2 * (s2 * inflation)[:, None, None]
 
 
-def _alternatives(R: np.ndarray, t: np.ndarray, A: Observations, B: Observations, pairs: np.ndarray,
-                  bg_own: np.ndarray, hyp: Hypotheses | None, cfg: ConfidenceConfig
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct alternative hypotheses (K, 2, 2), (K, 2): the matcher's, a flip, slides."""
-    Rs, ts = [], []
-    if hyp is not None and len(hyp.R):
-        Rs.append(hyp.R)
-        ts.append(hyp.t)
-    # a 180 deg flip about the matched vehicles (or the other radar's position)
-    pivot = A.centres[pairs[:, 0]].mean(axis=0) if len(pairs) else t
-    Rf = R @ _rot(np.array(np.pi))
-    Rs.append(Rf[None])
-    ts.append((pivot - Rf @ (R.T @ (pivot - t)))[None])
-    if len(bg_own) >= 3:                                       # slides along the main direction
-        d = bg_own - bg_own.mean(axis=0)
-        w, v = np.linalg.eigh(d.T @ d)
-        axis = v[:, 1]
+def _variants(R: np.ndarray, t: np.ndarray, pivot: np.ndarray, axis: np.ndarray | None,
+              cfg: ConfidenceConfig) -> tuple[np.ndarray, np.ndarray]:
+    """For each hypothesis: its 180 deg flip about `pivot` (H, 2) and slides along `axis`."""
+    Rf = np.einsum("hab,bc->hac", R, _rot(np.array(np.pi)))
+    tf = pivot - np.einsum("hab,hb->ha", Rf, np.einsum("hba,hb->ha", R, pivot - t))
+    Rs, ts = [Rf], [tf]
+    if axis is not None:
         sl = np.asarray(cfg.slides_m, float)
-        Rs.append(np.repeat(R[None], len(sl), 0))
-        ts.append(t[None] + sl[:, None] * axis[None])
-    Ra, ta = np.concatenate(Rs), np.concatenate(ts)
-    far = (np.linalg.norm(ta - t, axis=1) > cfg.distinct_m) \
-        | (np.abs(_wrap(_yaw(Ra) - _yaw(R))) > np.radians(cfg.distinct_deg))
-    return Ra[far], ta[far]
+        Rs.append(np.repeat(R, len(sl), 0))
+        ts.append((t[:, None] + sl[None, :, None] * axis).reshape(-1, 2))
+    return np.concatenate(Rs), np.concatenate(ts)
+
+
+def _margins(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray,
+             hyp: Hypotheses | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per hypothesis: margin over its best distinct alternative (-1 ... 1), whether one exists,
+    and the ambiguity (alternative score / own score)."""
+    H = len(R)
+    if ctx.scorer is None:
+        return np.ones(H), np.zeros(H), np.zeros(H)
+    pivot = np.broadcast_to(ctx.A.centres[pairs[:, 0]].mean(axis=0), (H, 2)) if len(pairs) else t
+    Rv, tv = _variants(R, t, pivot, ctx.main_axis, ctx.cfg)
+    pool_R, pool_t = [R, Rv], [t, tv]
+    if hyp is not None and len(hyp.R):
+        pool_R.append(hyp.R)
+        pool_t.append(hyp.t)
+    PR, Pt = np.concatenate(pool_R), np.concatenate(pool_t)
+    sc = ctx.scorer(PR, Pt)
+    own_s = sc[:H]
+    far = (np.linalg.norm(Pt[None] - t[:, None], axis=2) > ctx.cfg.distinct_m) \
+        | (np.abs(_wrap(_yaw(PR)[None] - _yaw(R)[:, None])) > np.radians(ctx.cfg.distinct_deg))   # (H, K)
+    alt = np.where(far, sc[None], -np.inf).max(axis=1)
+    has = np.isfinite(alt)
+    margin = np.where(has, np.clip((own_s - alt) / (np.abs(own_s) + 1.0), -1, 1), 1.0)
+    amb = np.where(has & (own_s > 0), np.clip(alt / np.where(own_s > 0, own_s, 1.0), 0, 2), np.where(has, 2.0, 0.0))
+    return margin, has.astype(float), amb
 
 
 def _in_view(p: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
@@ -290,18 +363,18 @@ def _in_view(p: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
     return (r > 4.0) & (r < cfg.camera_range_m) & (az < np.radians(cfg.camera_half_fov_deg))
 
 
-def _sighting(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray, cfg: ConfidenceConfig) -> float:
-    """+1 per vehicle seen by the other where the estimate puts it, -1 per one expected but not seen."""
+def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(H,) +1 per vehicle seen by the other where the hypothesis puts it, -1 per one expected but not seen."""
+    cfg = ctx.cfg
     body = np.array([0.0, -cfg.body_offset_m])
-    out = 0.0
-    cav_in_ego = R @ body + t
-    if _in_view(cav_in_ego, cfg):
-        seen = len(A.centres) and np.min(np.linalg.norm(A.centres - cav_in_ego, axis=1)) < cfg.sighting_m
-        out += 1.0 if seen else -1.0
-    ego_in_cav = R.T @ (body - t)
-    if _in_view(ego_in_cav, cfg):
-        seen = len(B.centres) and np.min(np.linalg.norm(B.centres - ego_in_cav, axis=1)) < cfg.sighting_m
-        out += 1.0 if seen else -1.0
+    cav_in_ego = np.einsum("hab,b->ha", R, body) + t
+    ego_in_cav = np.einsum("hba,hb->ha", R, body[None] - t)
+    out = np.zeros(len(R))
+    for where, cents in ((cav_in_ego, ctx.A.centres), (ego_in_cav, ctx.B.centres)):
+        view = _in_view(where, cfg)
+        seen = (np.linalg.norm(where[:, None] - cents[None], axis=2) < cfg.sighting_m).any(axis=1) \
+            if len(cents) else np.zeros(len(R), bool)
+        out += np.where(view, np.where(seen, 1.0, -1.0), 0.0)
     return out
 
 
@@ -309,104 +382,98 @@ def two_view_velocities(own: SharedFrame, other: SharedFrame, R: np.ndarray, pai
                         min_sin: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
     """Ground velocity (P, 2) m/s, Ego frame, of each matched vehicle from its radial speeds in
     both views (NaN where a view has no points or the lines of sight are near-parallel), and
-    whether it could be solved (P,)."""
+    whether it could be solved (P,). R: (2, 2) rotation of T_ego_cav."""
     ge, ue = radial_ground_speeds(own)
     gc, uc = radial_ground_speeds(other)
-    P = len(pairs)
-    v = np.full((P, 2), np.nan)
+    v, ok = _solve_two_view(ge, ue, gc, uc, np.asarray(R)[None], np.asarray(pairs, int).reshape(-1, 2), min_sin)
+    return v[0], ok[0]
+
+
+def _solve_two_view(ge, ue, gc, uc, R, pairs, min_sin: float = 0.25):
+    H, P = len(R), len(pairs)
+    v = np.full((H, P, 2), np.nan)
     if P == 0:
-        return v, np.zeros(0, bool)
+        return v, np.zeros((H, 0), bool)
     i, j = pairs[:, 0], pairs[:, 1]
-    u1, u2 = ue[i], uc[j] @ R.T
-    M = np.stack([u1, u2], axis=1)                            # (P, 2, 2) rows: lines of sight
-    det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
-    ok = np.isfinite(det) & (np.abs(det) > min_sin) & np.isfinite(ge[i]) & np.isfinite(gc[j])
+    u1 = np.broadcast_to(ue[i], (H, P, 2))
+    u2 = np.einsum("hab,pb->hpa", R, uc[j])
+    M = np.stack([u1, u2], axis=2)                                  # (H, P, 2, 2) rows: lines of sight
+    det = M[..., 0, 0] * M[..., 1, 1] - M[..., 0, 1] * M[..., 1, 0]
+    g = np.broadcast_to(np.column_stack([ge[i], gc[j]]), (H, P, 2))
+    ok = np.isfinite(det) & (np.abs(det) > min_sin) & np.isfinite(g).all(axis=2)
     if ok.any():
-        v[ok] = np.linalg.solve(M[ok], np.column_stack([ge[i], gc[j]])[ok][..., None])[..., 0]
+        v[ok] = np.linalg.solve(M[ok], g[ok][..., None])[..., 0]
     return v, ok
 
 
-def _free_space(own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
-                bin_deg: float = 1.0, near_m: float = 2.0, margin_m: float = 3.0) -> float:
-    """Share of the other background (within our view) that lies where our radar sees past it."""
-    ours = np.vstack([own.background[:, :2], own.vehicle_points[:, :2]]).astype(float)
-    theirs = other.background[:, :2].astype(float) @ R.T + t
-    if len(ours) < 5 or len(theirs) < 5:
-        return 0.0
-    az_o, r_o = np.degrees(np.arctan2(ours[:, 0], ours[:, 1])), np.linalg.norm(ours, axis=1)
-    az_t, r_t = np.degrees(np.arctan2(theirs[:, 0], theirs[:, 1])), np.linalg.norm(theirs, axis=1)
-    lo, hi = az_o.min(), az_o.max()
-    inside = (az_t >= lo) & (az_t <= hi) & (r_t > 3.0)
-    if inside.sum() < 5:
-        return 0.0
-    nb = int(np.ceil((hi - lo) / bin_deg)) + 1
-    bo = np.clip(((az_o - lo) / bin_deg).astype(int), 0, nb - 1)
-    far = np.zeros(nb)
-    np.maximum.at(far, bo, r_o)
-    bt = np.clip(((az_t[inside] - lo) / bin_deg).astype(int), 0, nb - 1)
-    tree = cKDTree(ours)
-    d, _ = tree.query(theirs[inside], distance_upper_bound=near_m)
-    beyond = far[bt] > r_t[inside] + margin_m
-    return float(np.mean(beyond & ~np.isfinite(d)))
+def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray,
+             match: MatchResult | None = None, inflation: float = 1.0
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Evidence (H, len(FEATURES)), covariances (H, 3, 3) and ambiguities (H,) of hypotheses
+    R (H, 2, 2), t (H, 2) with the matched pairs (P, 2), vectorised over the hypotheses."""
+    cfg = ctx.cfg
+    R, t = np.asarray(R, float), np.asarray(t, float)
+    pairs = np.asarray(pairs, int).reshape(-1, 2)
+    H = len(R)
+    info, chi2, dof, pair_chi2 = _information(ctx, R, t, pairs)
+    cov = covariances(info, chi2, dof, inflation)
+    margin, has_alt, amb = _margins(ctx, R, t, pairs, match.hypotheses if match else None)
+    v, solved = _solve_two_view(ctx.ge, ctx.ue, ctx.gc, ctx.uc, R, pairs)
+    fast = np.linalg.norm(v, axis=2) < cfg.max_speed_mps
+    n_solved = solved.sum(axis=1)
+    plausible = np.where(n_solved > 0, (fast & solved).sum(axis=1) / np.maximum(n_solved, 1), 0.5)
+    overlap, back = np.zeros(H), np.zeros(H)
+    theirs = np.einsum("hab,nb->hna", R, ctx.bg_other) + t[:, None] if len(ctx.bg_other) else None
+    if ctx.tree_own is not None and ctx.tree_other is not None:
+        d, _ = ctx.tree_own.query(theirs.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
+        overlap = np.isfinite(d).reshape(H, -1).mean(axis=1)
+        ours_in_theirs = np.einsum("hba,hnb->hna", R, ctx.bg_own[None] - t[:, None])
+        d, _ = ctx.tree_other.query(ours_in_theirs.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
+        back = np.isfinite(d).reshape(H, -1).mean(axis=1)
+    free = ctx.free.violation(theirs) if ctx.free is not None and theirs is not None and len(ctx.bg_other) >= 5 \
+        else np.zeros(H)
+    lin = np.ones(H)
+    if theirs is not None and len(ctx.bg_own) + len(ctx.bg_other) >= 3:
+        both = np.concatenate([np.broadcast_to(ctx.bg_own, (H,) + ctx.bg_own.shape), theirs], axis=1)
+        C = np.einsum("hni,hnj->hij", both - both.mean(axis=1, keepdims=True),
+                      both - both.mean(axis=1, keepdims=True))
+        ev = np.linalg.eigvalsh(C)
+        lin = ev[:, 0] / np.maximum(ev[:, 1], 1e-9)
+    gap = np.degrees(np.abs(_wrap(_yaw(R)[:, None] - ctx.yaws)).min(axis=1)) if ctx.yaws is not None \
+        else np.full(H, 45.0)
+    pos = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 1e-9) / max(inflation, 1e-9))
+    yaw_s = np.sqrt(np.maximum(cov[:, 2, 2], 1e-12) / max(inflation, 1e-9))
+    cols = {
+        "n_pairs": np.full(H, float(min(len(pairs), 8))),
+        "pair_chi2": np.minimum(pair_chi2, 25.0),
+        "margin": margin,
+        "has_alternative": has_alt,
+        "sighting": _sighting(ctx, R, t),
+        "doppler_plausible": plausible,
+        "doppler_tested": np.minimum(n_solved, 4).astype(float),
+        "free_space_violation": free,
+        "bg_overlap": overlap,
+        "bg_overlap_back": back,
+        "log_pos_sigma": np.log(pos),
+        "log_yaw_sigma": np.log(yaw_s),
+        "bg_linearity": lin,
+        "yaw_gap_deg": np.minimum(gap, 45.0),
+        "n_background": np.full(H, float(np.log1p(min(len(ctx.bg_own), len(ctx.bg_other))))),
+    }
+    return np.column_stack([cols[k] for k in FEATURES]), cov, amb
 
 
 def evidence(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndarray,
              match: MatchResult | None = None, scorer=None, cfg: ConfidenceConfig = ConfidenceConfig(),
              inflation: float = 1.0) -> tuple[dict[str, float], np.ndarray, float]:
-    """The evidence features, the (x, y, yaw) covariance and the ambiguity of one estimate.
+    """The evidence features, the (x, y, yaw) covariance and the ambiguity of one estimate T (4x4).
 
     scorer: callable (R (H, 2, 2), t (H, 2)) -> (H,) the matcher's evidence, or None.
     """
-    R, t = np.asarray(T, float)[:2, :2], np.asarray(T, float)[:2, 3]
-    pairs = np.asarray(pairs, int).reshape(-1, 2)
-    A, B = observe(own, cfg.observation), observe(other, cfg.observation)
-    info, chi2, dof, pair_chi2 = information(own, other, A, B, R, t, pairs, cfg)
-    cov = covariance(info, chi2, dof, inflation)
-    bg_own, bg_other = own.background[:, :2].astype(float), other.background[:, :2].astype(float)
-
-    margin, has_alt, ambiguity = 1.0, 0.0, 0.0
-    if scorer is not None:
-        Ra, ta = _alternatives(R, t, A, B, pairs, bg_own, match.hypotheses if match else None, cfg)
-        s = scorer(np.concatenate([R[None], Ra]), np.concatenate([t[None], ta]))
-        best, alt = float(s[0]), (float(np.max(s[1:])) if len(s) > 1 else -np.inf)
-        if np.isfinite(alt):
-            has_alt = 1.0
-            margin = float(np.clip((best - alt) / (abs(best) + 1.0), -1.0, 1.0))
-            ambiguity = float(np.clip(alt / best, 0.0, 2.0)) if best > 0 else 2.0
-    v2, solved = two_view_velocities(own, other, R, pairs)
-    speed = np.linalg.norm(v2, axis=1)
-    plausible = float(np.mean(speed[solved] < cfg.max_speed_mps)) if solved.any() else 0.5
-    overlap, back = 0.0, 0.0
-    if len(bg_own) >= 3 and len(bg_other) >= 3:
-        d, _ = cKDTree(bg_own).query(bg_other @ R.T + t, distance_upper_bound=cfg.bg_gate_m)
-        overlap = float(np.isfinite(d).mean())
-        d, _ = cKDTree(bg_other).query((bg_own - t) @ R, distance_upper_bound=cfg.bg_gate_m)
-        back = float(np.isfinite(d).mean())
-    both = np.vstack([bg_own, bg_other @ R.T + t]) if len(bg_other) else bg_own
-    lin = 1.0
-    if len(both) >= 3:
-        ev = np.linalg.eigvalsh(np.cov(both.T))
-        lin = float(ev[0] / max(ev[1], 1e-9))
-    yaws = heading_yaws(own, other)
-    gap = float(np.degrees(np.abs(_wrap(_yaw(R) - yaws)).min())) if yaws is not None else 45.0
-    feats = {
-        "n_pairs": float(min(len(pairs), 8)),
-        "pair_chi2": float(min(pair_chi2, 25.0)),
-        "margin": margin,
-        "has_alternative": has_alt,
-        "sighting": _sighting(A, B, R, t, cfg),
-        "doppler_plausible": plausible,
-        "doppler_tested": float(min(int(solved.sum()), 4)),
-        "free_space_violation": _free_space(own, other, R, t),
-        "bg_overlap": overlap,
-        "bg_overlap_back": back,
-        "log_pos_sigma": float(np.log(np.sqrt(max(cov[0, 0] + cov[1, 1], 1e-9)) / max(inflation, 1e-9) ** 0.5)),
-        "log_yaw_sigma": float(np.log(np.sqrt(max(cov[2, 2], 1e-12)) / max(inflation, 1e-9) ** 0.5)),
-        "bg_linearity": lin,
-        "yaw_gap_deg": min(gap, 45.0),
-        "n_background": float(np.log1p(min(len(bg_own), len(bg_other)))),
-    }
-    return feats, cov, ambiguity
+    ctx = PairContext(own, other, scorer, cfg)
+    T = np.asarray(T, float)
+    X, cov, amb = features(ctx, T[None, :2, :2], T[None, :2, 3], pairs, match, inflation)
+    return dict(zip(FEATURES, map(float, X[0]))), cov[0], float(amb[0])
 
 
 def threshold(cfg: ConfidenceConfig = ConfidenceConfig()) -> float:
@@ -417,20 +484,27 @@ def threshold(cfg: ConfidenceConfig = ConfidenceConfig()) -> float:
     return model.threshold if model is not None else 0.0
 
 
-def assess(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndarray,
-           match: MatchResult | None = None, scorer=None, cfg: ConfidenceConfig = ConfidenceConfig()
-           ) -> Assessment:
-    """Confidence, covariance, ambiguity and the reason against one estimate (see the module doc).
+def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray,
+                match: MatchResult | None = None) -> list[Assessment]:
+    """Confidence, covariance, ambiguity and the reason against each hypothesis (see the module doc).
 
     Without a fitted model the probability is NaN (nothing is refused).
     """
+    cfg = ctx.cfg
     model = load_model(cfg.model_path)
     inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
-    feats, cov, ambiguity = evidence(own, other, T, pairs, match, scorer, cfg, inflation)
-    if model is None:
-        return Assessment(float("nan"), cov, ambiguity, "", feats)
-    x = np.array([feats[k] for k in FEATURES])
-    p = float(model.probability(x)[0])
-    terms = model.logit_terms(x)
-    reason = REASONS[FEATURES[int(np.argmin(terms))]]
-    return Assessment(p, cov, ambiguity, reason, feats)
+    X, cov, amb = features(ctx, R, t, pairs, match, inflation)
+    out = []
+    p = model.probability(X) if model is not None else np.full(len(X), np.nan)
+    for h in range(len(X)):
+        reason = REASONS[FEATURES[int(np.argmin(model.logit_terms(X[h])))]] if model is not None else ""
+        out.append(Assessment(float(p[h]), cov[h], float(amb[h]), reason, dict(zip(FEATURES, map(float, X[h])))))
+    return out
+
+
+def assess(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndarray,
+           match: MatchResult | None = None, scorer=None, cfg: ConfidenceConfig = ConfidenceConfig()
+           ) -> Assessment:
+    """`assess_many` for one estimate T (4x4)."""
+    T = np.asarray(T, float)
+    return assess_many(PairContext(own, other, scorer, cfg), T[None, :2, :2], T[None, :2, 3], pairs, match)[0]

@@ -65,6 +65,12 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
         return R, t
     if tree is None and len(bg_own) >= 3:
         tree = cKDTree(bg_own)
+    if allowed is not None:
+        ia, ib = np.nonzero(allowed)
+        if len(np.unique(ia)) == len(ia) and len(np.unique(ib)) == len(ib):
+            # one-to-one pairs (an aligner's matched vehicles): only they take part
+            A, B, D = A.subset(ia), B.subset(ib), D[ia][:, ib]
+            allowed = np.eye(len(ia), dtype=bool)
     ok_pair = D < cfg.desc_gate if allowed is None else allowed & (D < cfg.desc_gate)
     if cfg.bg_max_points > 0 and len(bg_other) > cfg.bg_max_points:
         bg_other = bg_other[np.linspace(0, len(bg_other) - 1, cfg.bg_max_points).astype(int)]

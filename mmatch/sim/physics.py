@@ -43,14 +43,14 @@ KNOBS: dict[str, Knob] = {
     # radar: angle accuracy (see mmatch/sim/radar_errors.py for the model they feed)
     "angle_noise_scale": Knob(1.0, (0.7, 1.6), "factor on the array-bound + glint angle errors", log=True,
                               lo_limit=0.05, hi_limit=10.0),
-    "calibration_residual_deg": Knob(0.6, (0.2, 1.2), "per-radar azimuth calibration residual, deg (1 sigma)",
+    "calibration_residual_deg": Knob(0.35, (0.1, 0.6), "per-radar azimuth calibration residual, deg (1 sigma)",
                                      hi_limit=10.0),
     "glint_factor": Knob(0.25, (0.1, 0.4), "angle wander of an extended target, share of its angular extent",
                          hi_limit=2.0),
     "virtual_channels_az": Knob(8, (8, 12), "virtual channels across azimuth", lo_limit=2, hi_limit=256,
                                 integer=True),
-    "virtual_channels_el": Knob(2, (2, 4), "virtual channels across elevation", lo_limit=1, hi_limit=64,
-                                integer=True),
+    "virtual_channels_el": Knob(4, (3, 5), "virtual channels across elevation (an xWR18xx's elevated TX row: "
+                                "4 RX pairs)", lo_limit=1, hi_limit=64, integer=True),
     "range_sigma_m": Knob(0.06, (0.04, 0.15), "range noise, m (1 sigma)", hi_limit=5.0),
     "doppler_sigma_mps": Knob(0.06, (0.04, 0.15), "Doppler noise at high SNR, m/s (1 sigma)", hi_limit=5.0),
     "wheel_share": Knob(0.12, (0.05, 0.25), "share of a moving vehicle's returns from its wheels (micro-Doppler)",

@@ -39,7 +39,7 @@ class RadarSpec:
 
 # SNR (dB) of a return 10 m away and the range exponent of its power (4: point-like, 3: distributed)
 STATIC_SNR_10M = {GUARDRAIL: (29.0, 3.0), FACADE: (33.0, 3.0), POLE: (38.0, 4.0), VEGETATION: (26.0, 3.0)}
-VEHICLE_SNR_10M = 44.0        # a car's strongest corner; trucks +3 dB; weaker faces by their strength
+VEHICLE_SNR_10M = 54.0        # a car's strongest corner; trucks +3 dB; weaker faces by their strength
 WHEEL_LOSS_DB = 6.0
 GHOST_LOSS_DB = 9.0
 SNR_REPORT_SIGMA_DB = 1.0     # the radar's own SNR estimate is noisy
@@ -87,10 +87,12 @@ class ArrayCalibration:
 def array_bound_sigma(snr_db: np.ndarray, angle: np.ndarray, channels: float) -> np.ndarray:
     """Cramer-Rao bound (rad) of the angle of one point target on a half-wavelength uniform array.
 
-    var(sin theta) = 6 / (pi^2 N (N^2 - 1) SNR), SNR linear; the angle error grows as 1 / cos(theta).
+    var(sin theta) = 6 / (pi^2 N (N^2 - 1) SNR_channel); the SNR a TI radar reports is that of
+    the detection map, summed over the N virtual channels (SNR_channel = SNR / N); the angle
+    error grows as 1 / cos(theta).
     """
-    snr = 10.0 ** (np.asarray(snr_db) / 10.0)
     n = max(float(channels), 2.0)
+    snr = 10.0 ** (np.asarray(snr_db) / 10.0) / n
     su = np.sqrt(6.0 / (np.pi ** 2 * n * (n * n - 1.0) * snr))
     return su / np.maximum(np.cos(angle), 0.2)
 

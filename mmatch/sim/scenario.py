@@ -301,6 +301,23 @@ def make_scene(seed: int, index: int, mode: str, physics: str | PhysicsFamily = 
     return scene
 
 
+def scene_from_world(world: World, seed: int, physics: str | PhysicsFamily | PhysicsSample = "nominal",
+                     t0: float = 0.1, name: str = "scene") -> Scene:
+    """An Ego/CAV frame pair of a given world (vehicles `world.ego` and `world.cav`), for tests
+    and hand-made situations; the mounts and noise come from `seed` and the physics."""
+    sc = Scenario(seed, "hard", physics=physics)
+    sc._store(0, world)
+    rng = np.random.default_rng([seed, 99])
+    dt = float(rng.uniform(-FRAME_PERIOD_S / 2, FRAME_PERIOD_S / 2))
+    ego = sc._observe(world, "ego", t0, t0, rng)
+    cav = sc._observe(world, "cav", t0 + dt, t0 + dt, rng)
+    pairs = _pairs(ego.box_ids, cav.box_ids)
+    meta = dict(world.meta, seed=seed, parked_ids=np.flatnonzero(world.vehicles.parked).tolist(),
+                covisible=int(len(pairs)))
+    return Scene(ego=_view(ego), cav=_view(cav), gt_T_ego_cav=np.linalg.inv(ego.world_T_radar) @ cav.world_T_radar,
+                 gt_pairs=pairs, meta=meta, name=name)
+
+
 def _view(o: Observation) -> View:
     return View(points=o.points, boxes=o.boxes, features=o.features, camera=o.camera, stamp=o.stamp,
                 radar_height=o.radar_height, point_labels=o.point_labels, box_ids=o.box_ids)

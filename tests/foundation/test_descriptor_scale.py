@@ -82,8 +82,8 @@ def test_folder_scale_is_near_one_for_the_simulator_and_below_for_noisier_camera
 
 
 def test_calibration_recovers_pairs_that_noisier_cameras_lose(noisy_dir):
-    auto, _ = evaluate_dir(noisy_dir, EvalConfig(cav="labels"))
-    fixed, _ = evaluate_dir(noisy_dir, EvalConfig(cav="labels", descriptor_scale=1.0))
+    auto, _ = evaluate_dir(noisy_dir, EvalConfig(cav="labels", confidence_threshold=0.0))
+    fixed, _ = evaluate_dir(noisy_dir, EvalConfig(cav="labels", descriptor_scale=1.0, confidence_threshold=0.0))
     assert auto["config"]["descriptor_scale"] < 0.9
     assert auto["pair_recall"] > fixed["pair_recall"] + 0.05
     assert auto["pair_precision"] > fixed["pair_precision"] - 0.03

@@ -39,7 +39,7 @@ def _frame(centres_pts: list, cams: np.ndarray, bg: np.ndarray | None = None) ->
 
 
 def test_covariance_is_long_along_the_line_of_sight():
-    m = ObservationModel()
+    m = ObservationModel(camera_bearing=False)
     obs = observe(_frame([[0.0, 30.0], None], np.array([[0.0, 31.0], [30.0, 0.0]])), m)
     w, v = np.linalg.eigh(obs.cov[0])                  # vehicle with points, straight ahead
     assert np.sqrt(w[1]) == pytest.approx(m.along_points_m) and abs(v[1, 1]) == pytest.approx(1.0)
@@ -59,14 +59,33 @@ def test_two_end_on_views_from_crossing_directions_agree_only_where_their_rays_c
     in_cav = _rot(90).T @ (truth - T_t)
     near_own = truth - 4.4 * truth / np.linalg.norm(truth)
     near_cav = in_cav - 4.4 * in_cav / np.linalg.norm(in_cav)
-    A = observe(_frame([near_own], truth[None]))
-    B = observe(_frame([near_cav], in_cav[None]))
+    radar_only = ObservationModel(camera_bearing=False)
+    A = observe(_frame([near_own], truth[None]), radar_only)
+    B = observe(_frame([near_cav], in_cav[None]), radar_only)
     right = mahalanobis(A, B, T_R[None], T_t[None])[0, 0, 0]
     iso = np.linalg.norm(A.centres[0] - (T_R @ B.centres[0] + T_t))
     assert iso > 2.0 and right < 2.0                    # isotropically 2+ m apart, yet consistent
     print(f"\nend-on views: {iso:.2f} m apart, Mahalanobis {right:.2f}")
     wrong = mahalanobis(A, B, T_R[None], (T_t + T_R @ [0.0, 0.0] + np.array([4.0, -4.0]))[None])[0, 0, 0]
     assert wrong > 2.5                                   # beyond the pair gate: a 5.7 m shift is not
+
+
+def test_the_camera_bearing_places_a_vehicle_with_points_across_its_ray():
+    m = ObservationModel()
+    cam = np.array([[8.0, 40.0]])                        # the box's centre estimate
+    origin = np.array([0.0, -m.camera_back_m])
+    ray = (cam[0] - origin) / np.linalg.norm(cam[0] - origin)
+    normal = np.array([-ray[1], ray[0]])
+    pts = cam[0] - 2.0 * ray + 1.5 * normal              # radar returns 1.5 m off the ray, near face
+    obs = observe(_frame([pts], cam), m)
+    radar = observe(_frame([pts], cam), ObservationModel(camera_bearing=False))
+    off = (obs.centres[0] - origin) @ normal
+    assert 0.0 < off < 0.5 * 1.5                          # pulled most of the way onto the camera's ray
+    along_shift = (obs.centres[0] - radar.centres[0]) @ ray
+    assert abs(along_shift) < 0.05                        # the range stays the radar's
+    w, v = np.linalg.eigh(obs.cov[0])
+    assert np.sqrt(w[0]) < m.camera_across_m + m.camera_across_rad * 41 and abs(v[:, 0] @ normal) > 0.99
+    assert np.sqrt(w[1]) == pytest.approx(m.along_points_m)
 
 
 def test_the_camera_estimate_rescues_a_vehicle_with_wrong_points():

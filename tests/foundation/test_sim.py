@@ -8,8 +8,8 @@ from mmatch.sim.realism import check_targets, realism_figures
 from mmatch.sim.scenario import make_scenario
 
 
-def test_realism_targets_hold_on_mixed_scenes(mixed_scenes):
-    fig = realism_figures(mixed_scenes)
+def test_realism_targets_hold_on_wide_mixed_scenes(wide_mixed_scenes):
+    fig = realism_figures(wide_mixed_scenes)
     ok = check_targets(fig)
     assert all(ok.values()), fig
 

@@ -12,7 +12,7 @@ puts most of the other view's background on the own view's wins.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -33,6 +33,12 @@ class ConstrainedConfig:
     score_gate_m: float = 1.0           # background points within this count as agreeing
     max_single_pair_starts: int = 8     # up to this many pairs, each also starts a fit alone
     kabsch_with_hint: bool = False      # also start from Kabsch when the matcher gives a transform
+    starts_with_hint: bool = True       # also the single-pair and two-pair starts with a transform
+    max_candidates: int = 8             # distinct results handed on (AlignResult.candidates)
+    coarse_iterations: int = 3          # rounds for every start before the best are refined fully
+    distinct_m: float = 1.0
+    distinct_deg: float = 2.0
+    yaw_offsets_deg: tuple[float, ...] = (-4.0, 0.0, 4.0)
 
 
 class ConstrainedAligner:
@@ -52,12 +58,20 @@ class ConstrainedAligner:
         if len(pairs) >= 2 and (match.T_hint is None or cfg.kabsch_with_hint):
             w = 1.0 / np.array([np.trace(A.cov[i]) + np.trace(B.cov[j]) for i, j in pairs])
             starts.append(kabsch2d(B.centres[pairs[:, 1]], A.centres[pairs[:, 0]], w))
-        if match.T_hint is None and yaws is not None and len(pairs) <= cfg.max_single_pair_starts:
-            # each pair under each heading yaw: a start that one badly placed pair cannot spoil
+        if (match.T_hint is None or cfg.starts_with_hint) and yaws is not None \
+                and len(pairs) <= cfg.max_single_pair_starts:
+            # each pair under each heading yaw (and a few degrees either side): starts that one
+            # badly placed pair cannot spoil
             for i, j in pairs:
                 for y in yaws:
-                    R = np.array([[np.cos(y), -np.sin(y)], [np.sin(y), np.cos(y)]])
-                    starts.append((R, A.centres[i] - R @ B.centres[j]))
+                    for dy in np.radians(cfg.yaw_offsets_deg):
+                        R = np.array([[np.cos(y + dy), -np.sin(y + dy)], [np.sin(y + dy), np.cos(y + dy)]])
+                        starts.append((R, A.centres[i] - R @ B.centres[j]))
+        if (match.T_hint is None or cfg.starts_with_hint) and 2 <= len(pairs) <= cfg.max_single_pair_starts:
+            for a in range(len(pairs)):                  # every two pairs fix a transform
+                for b in range(a + 1, len(pairs)):
+                    sub = pairs[[a, b]]
+                    starts.append(kabsch2d(B.centres[sub[:, 1]], A.centres[sub[:, 0]]))
         if not starts:
             return AlignResult(None, f"{len(pairs)} matched vehicle(s) and no usable hint")
         allowed = np.zeros((len(A.centres), len(B.centres)), bool)
@@ -65,32 +79,58 @@ class ConstrainedAligner:
         D = scaled_distance(own.vehicle_features, other.vehicle_features, match.descriptor_scale)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
-        Rs, ts = refine_many(A, B, D, bg_own, bg_other, np.stack([r for r, _ in starts]),
-                             np.stack([x for _, x in starts]), yaws, cfg.refine, tree, allowed)
-        best, best_score = None, -np.inf
-        for R, t in zip(Rs, ts):
-            if not np.all(np.isfinite(t)):
-                continue
-            score = _agreement(A, B, pairs, R, t, bg_other, tree, cfg)
-            if score > best_score + 1e-9:
-                best, best_score = (R, t), score
-        if best is None:
+        Rs, ts = np.stack([r for r, _ in starts]), np.stack([x for _, x in starts])
+        if len(Rs) > cfg.max_candidates:
+            # a few rounds for every start, then the full refinement of the distinct best
+            Rs, ts = refine_many(A, B, D, bg_own, bg_other, Rs, ts, yaws,
+                                 replace(cfg.refine, iterations=cfg.coarse_iterations), tree, allowed)
+            ok = _finite(Rs, ts)
+            Rs, ts = Rs[ok], ts[ok]
+            sel = _distinct(Rs, ts, _agreement(A, B, pairs, Rs, ts, bg_other, tree, cfg), cfg)
+            Rs, ts = Rs[sel], ts[sel]
+        Rs, ts = refine_many(A, B, D, bg_own, bg_other, Rs, ts, yaws, cfg.refine, tree, allowed)
+        ok = _finite(Rs, ts)
+        Rs, ts = Rs[ok], ts[ok]
+        if len(Rs) == 0:
             return AlignResult(None, "alignment diverged")
-        R, t = best
+        keep = _distinct(Rs, ts, _agreement(A, B, pairs, Rs, ts, bg_other, tree, cfg), cfg)
+        R, t = Rs[keep[0]], ts[keep[0]]
         inl = 0.0
         if tree is not None and len(bg_other):
             d, _ = tree.query(bg_other @ R.T + t, distance_upper_bound=cfg.score_gate_m)
             inl = float(np.isfinite(d).mean())
-        return AlignResult(se2_to_matrix(R, t, other.radar_height - own.radar_height), inlier_share=inl)
+        return AlignResult(se2_to_matrix(R, t, other.radar_height - own.radar_height), inlier_share=inl,
+                           candidates=(Rs[keep], ts[keep]))
 
 
-def _agreement(A, B, pairs, R, t, bg_other, tree, cfg) -> float:
-    """Matched pairs explained (within 3 sigma) plus the background share within the gate."""
-    s = 0.0
+def _distinct(R: np.ndarray, t: np.ndarray, score: np.ndarray, cfg: ConstrainedConfig) -> np.ndarray:
+    """Indices of the best-scored results, skipping those within distinct_m / distinct_deg of a better one."""
+    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    chosen: list[int] = []
+    for h in np.argsort(-score, kind="stable"):
+        if len(chosen) >= cfg.max_candidates:
+            break
+        if chosen:
+            c = np.asarray(chosen)
+            dy = np.abs((yaw[c] - yaw[h] + np.pi) % (2 * np.pi) - np.pi)
+            if np.any((np.linalg.norm(t[c] - t[h], axis=1) < cfg.distinct_m) & (dy < np.radians(cfg.distinct_deg))):
+                continue
+        chosen.append(int(h))
+    return np.asarray(chosen, int)
+
+
+def _finite(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    return np.all(np.isfinite(t), axis=1) & np.all(np.isfinite(R), axis=(1, 2))
+
+
+def _agreement(A, B, pairs, R, t, bg_other, tree, cfg) -> np.ndarray:
+    """(H,) matched pairs explained (within 3 sigma) plus 3 x the background share within the gate."""
+    s = np.zeros(len(R))
     if len(pairs):
-        dm = mahalanobis(A, B, R[None], t[None])[0][pairs[:, 0], pairs[:, 1]]
-        s += float(np.sum(np.clip(1 - dm / 3.0, 0, None)))
+        dm = mahalanobis(A, B, R, t)[:, pairs[:, 0], pairs[:, 1]]
+        s += np.clip(1 - dm / 3.0, 0, None).sum(axis=1)
     if tree is not None and len(bg_other):
-        d, _ = tree.query(bg_other @ R.T + t, distance_upper_bound=cfg.score_gate_m)
-        s += 3.0 * float(np.isfinite(d).mean())
+        moved = np.einsum("hab,nb->hna", R, bg_other) + t[:, None]
+        d, _ = tree.query(moved.reshape(-1, 2), distance_upper_bound=cfg.score_gate_m)
+        s += 3.0 * np.isfinite(d).reshape(len(R), -1).mean(axis=1)
     return s

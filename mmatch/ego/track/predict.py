@@ -34,6 +34,7 @@ class _Track:
     own_stamp: float
     other_stamp: float
     since_full: int = 0
+    confidence: float = float("nan")
 
 
 def _shift(v: np.ndarray, dt: float) -> np.ndarray:
@@ -72,34 +73,45 @@ class Tracker:
         own_new_from_old = np.linalg.inv(_shift(_velocity(own), dt_own))
         return own_new_from_old @ tr.T @ _shift(_velocity(other), dt_other)
 
+    def confidence(self, other: SharedFrame) -> float:
+        """The confidence of the full-search estimate the sender's track rests on (NaN: no track)."""
+        tr = self._tracks.get(other.sender)
+        return tr.confidence if tr is not None else float("nan")
+
+    def agrees(self, T: np.ndarray, predicted: np.ndarray | None) -> bool:
+        """Whether an estimate lies within agree_m / agree_deg of the track's prediction."""
+        if predicted is None:
+            return False
+        d = np.linalg.norm(T[:2, 3] - predicted[:2, 3])
+        yaw = np.degrees(abs((np.arctan2(T[1, 0], T[0, 0]) - np.arctan2(predicted[1, 0], predicted[0, 0])
+                              + np.pi) % (2 * np.pi) - np.pi))
+        return bool(d <= self.cfg.agree_m and yaw <= self.cfg.agree_deg)
+
     def tracking_only(self, other: SharedFrame) -> bool:
         """Whether the next frame of this sender may skip the global search."""
         tr = self._tracks.get(other.sender)
         return tr is not None and 0 < tr.since_full < self.cfg.full_search_every
 
     def update(self, own: SharedFrame, other: SharedFrame, T: np.ndarray | None, n_pairs: int,
-               predicted: np.ndarray | None, full_search: bool = True) -> bool:
+               predicted: np.ndarray | None, full_search: bool = True, confidence: float = float("nan")) -> bool:
         """Keep T as the sender's track when trusted; returns whether it was kept.
 
         full_search: T came from a global search (else from refining the prediction alone);
-        an untrusted result forces the next frame to search globally.
+        an untrusted result forces the next frame to search globally. confidence: of a
+        full-search T; a track keeps that of the full search it rests on.
         """
         if not self.enabled or T is None:
             old = self._tracks.get(other.sender)
             if old is not None:
                 old.since_full = 0
             return False
-        trusted = n_pairs >= self.cfg.min_pairs
-        if predicted is not None and not trusted:
-            d = np.linalg.norm(T[:2, 3] - predicted[:2, 3])
-            yaw = np.degrees(abs((np.arctan2(T[1, 0], T[0, 0]) - np.arctan2(predicted[1, 0], predicted[0, 0])
-                                  + np.pi) % (2 * np.pi) - np.pi))
-            trusted = d <= self.cfg.agree_m and yaw <= self.cfg.agree_deg
+        trusted = n_pairs >= self.cfg.min_pairs or self.agrees(T, predicted)
         old = self._tracks.get(other.sender)
         if trusted:
             since = 1 if full_search or old is None else old.since_full + 1
+            conf = confidence if full_search or old is None else max(confidence, old.confidence)
             self._tracks[other.sender] = _Track(np.asarray(T, float).copy(), float(own.stamp), float(other.stamp),
-                                                since)
+                                                since, float(conf))
         elif old is not None:
             old.since_full = 0
         return trusted

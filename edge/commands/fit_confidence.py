@@ -1,0 +1,49 @@
+"""`mmatch fit-confidence`: fit the probability model behind every estimate's confidence."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from mmatch.edge.commands.args import positive_int
+
+HELP = "fit the confidence model (P(within 2 m / 5 deg)) on folders of scene files, seeds apart from reporting"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("folders", nargs="+", help="folders of *.npz scene files (with ground truth)")
+    p.add_argument("--out", default=None,
+                   help="model file to write (default: the packaged mmatch/ego/confidence_model.json)")
+    p.add_argument("--max-gross", type=float, default=0.015,
+                   help="gross-error rate among the emitted estimates the threshold must keep")
+    p.add_argument("--min-coverage", type=float, default=0.8, help="share of scenes to keep when possible")
+    p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
+
+
+def run(args: argparse.Namespace) -> int:
+    from mmatch.edge.commands.progress import Progress
+    from mmatch.ego.confidence import MODEL_PATH
+    from mmatch.ego.confidence_fit import fit_model
+    from mmatch.errors import ParseError
+    from mmatch.evaluate import EvalConfig, evaluate_dir
+
+    results = []
+    for folder in args.folders:
+        if not Path(folder).is_dir() or not any(Path(folder).glob("*.npz")):
+            raise ParseError(f"{folder}: not a folder of *.npz scene files")
+        _, res = evaluate_dir(folder, EvalConfig(confidence_threshold=0.0), args.jobs, Progress("fit"))
+        results.extend(res)
+    try:
+        model = fit_model(results, args.max_gross, args.min_coverage, meta={"folders": args.folders})
+    except ValueError as exc:
+        raise ParseError(str(exc)) from exc
+    out = Path(args.out) if args.out else MODEL_PATH
+    out.write_text(model.to_json() + "\n")
+    m = model.meta
+    print(f"fit on {m['candidates']} candidate transforms of {m['scenes']} scenes (success {m['candidate_success']:.3f}); "
+          f"chosen per scene: success {m['chosen_success']:.3f}, gross {m['chosen_gross']:.3f}; "
+          f"threshold {model.threshold:.3f}, covariance inflation {model.inflation:.2f}")
+    for name, c in sorted(zip(model.features, model.coef), key=lambda x: -abs(x[1])):
+        print(f"  {name:<22} {c:+.3f}")
+    print(f"wrote {out}")
+    return 0

@@ -1,0 +1,100 @@
+"""Fit the confidence model of ego/confidence.py on evaluated scenes (`mmatch fit-confidence`).
+
+Input: per-scene results of `mmatch.evaluate` run with confidence threshold 0 (every
+candidate estimate emitted, each with its evidence and its true error). Output: a
+`ProbabilityModel`: a logistic regression of "within 2 m / 5 deg" on the standardised
+evidence (scikit-learn, L2), the covariance inflation that makes the 95 % ellipse hold
+the truth for 95 % of the successful estimates, and the threshold: the lowest probability
+at which the gross rate among the emitted stays at or below `max_gross` (keeping at least
+`min_coverage` of the scenes when it can).
+
+Choose the seeds you fit on apart from those you report on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mmatch.ego.confidence import CHI2_3_95, FEATURES, ProbabilityModel
+
+
+def training_rows(results: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every candidate transform of every scene: X (n, F), success (n,), gross (n,), scene index (n,)."""
+    X, y, g, sid = [], [], [], []
+    for k, r in enumerate(results):
+        for c in r.get("alternatives") or []:
+            X.append([c["evidence"][f] for f in FEATURES])
+            y.append(c["success"])
+            g.append(c["gross"])
+            sid.append(k)
+    return (np.array(X, float).reshape(-1, len(FEATURES)), np.array(y, bool), np.array(g, bool),
+            np.array(sid, int))
+
+
+def _mahalanobis_sq(c: dict) -> float:
+    e = np.asarray(c["error"], float)
+    try:
+        return float(e @ np.linalg.solve(np.asarray(c["covariance"], float), e))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
+def fit_inflation(chosen: list[dict], target: float = 0.95) -> float:
+    """Factor on the covariances so that the 95 % ellipse holds the truth for `target` of the
+    chosen candidates that succeed (each with its error and its covariance at inflation 1)."""
+    d2 = [_mahalanobis_sq(c) for c in chosen if c["success"]]
+    d2 = [x for x in d2 if np.isfinite(x)]
+    if not d2:
+        return 1.0
+    return float(max(np.quantile(d2, target) / CHI2_3_95, 1e-3))
+
+
+def choose_threshold(p: np.ndarray, gross: np.ndarray, n_scenes: int, max_gross: float,
+                     min_coverage: float) -> float:
+    """Lowest probability threshold whose emitted set has a gross rate <= max_gross; if that
+    covers less than min_coverage of the scenes, the threshold that keeps min_coverage
+    provided its gross rate stays within twice max_gross."""
+    order = np.argsort(-p, kind="stable")
+    cum_gross = np.cumsum(gross[order]) / np.arange(1, len(p) + 1)
+    ok = np.flatnonzero(cum_gross <= max_gross)
+    if len(ok) == 0:
+        return 1.0
+    k = int(ok.max())                                    # keep order[: k + 1]
+    need = int(np.ceil(min_coverage * n_scenes)) - 1
+    if k < need <= len(p) - 1 and cum_gross[need] <= 2 * max_gross:
+        k = need
+    return float(p[order[k]] - 1e-9)
+
+
+def fit_model(results: list[dict], max_gross: float = 0.015, min_coverage: float = 0.8,
+              C: float = 1.0, meta: dict | None = None) -> ProbabilityModel:
+    """The probability model, inflation and threshold from evaluated scenes (see module doc).
+
+    The regression learns from every candidate of every scene (right and wrong ones side by
+    side); the threshold and the inflation from the candidate the model would choose in each
+    scene, as the Fuser does.
+    """
+    from sklearn.linear_model import LogisticRegression
+
+    X, y, g, sid = training_rows(results)
+    if len(X) < 20 or y.all() or not y.any():
+        raise ValueError(f"need at least 20 candidates with both outcomes, got {len(X)}")
+    mean, scale = X.mean(axis=0), X.std(axis=0)
+    scale = np.where(scale > 1e-9, scale, 1.0)
+    clf = LogisticRegression(C=C, max_iter=5000)
+    clf.fit((X - mean) / scale, y)
+    model = ProbabilityModel(FEATURES, mean, scale, clf.coef_[0].astype(float), float(clf.intercept_[0]))
+    p = model.probability(X)
+    chosen_rows, chosen = [], []
+    for k in np.unique(sid):
+        idx = np.flatnonzero(sid == k)
+        best = idx[int(np.argmax(p[idx]))]
+        chosen_rows.append(best)
+        chosen.append(results[k]["alternatives"][int(best - idx[0])])
+    chosen_rows = np.asarray(chosen_rows)
+    n_scenes = sum(1 for r in results if "rejected" not in r)
+    thr = choose_threshold(p[chosen_rows], g[chosen_rows], n_scenes, max_gross, min_coverage)
+    info = dict(meta or {}, candidates=len(X), scenes=n_scenes, chosen=len(chosen_rows),
+                chosen_success=float(y[chosen_rows].mean()), chosen_gross=float(g[chosen_rows].mean()),
+                candidate_success=float(y.mean()), max_gross=max_gross, min_coverage=min_coverage)
+    return ProbabilityModel(FEATURES, mean, scale, model.coef, model.intercept, fit_inflation(chosen), thr, info)

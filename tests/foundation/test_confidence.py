@@ -1,0 +1,102 @@
+"""Know when the estimate is wrong: hand-made situations that defeat the evidence must end in
+"no estimate" or a right answer, never a confident wrong one; covariance and eval figures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mmatch.ego.confidence import CHI2_3_95, FEATURES, PairContext, features, inside_ellipse, pose_error
+from mmatch.evaluate import EvalConfig, evaluate_scene, sureness_report
+from mmatch.sim.scenario import scene_from_world
+from mmatch.shared import SharedFrame
+from mmatch.sim.world import LANE_W, Vehicles, World, _Builder
+
+SEEDS = range(4)
+
+
+def _world(cars: list[tuple[float, float]], one_side: bool = False, colour: int = 0, poles: bool = True) -> World:
+    """A straight 3-lane road along +y: guardrails (one side only if asked) and poles every 25 m,
+    nothing else; Ego at (0, 0) and CAV at (0, 30) driving +y at 14 m/s, `cars` (x, y) at the same
+    speed, all alike (one colour, one size)."""
+    b = _Builder(np.random.default_rng(0))
+    half = 1.5 * LANE_W
+    for side in ((1,) if one_side else (-1, 1)):
+        b.guardrail((side * (half + 0.6), -450.0), (side * (half + 0.6), 450.0))
+        for y in np.arange(-440.0, 450.0, 25.0) if poles else ():
+            b.pole((side * (half + 1.2), y))
+    pts, kind, wa, wb, occ = b.result()
+    pos = np.array([[0.0, 0.0], [0.0, 30.0]] + [list(c) for c in cars])
+    n = len(pos)
+    veh = Vehicles(pos0=pos, yaw=np.full(n, np.pi / 2), speed=np.full(n, 14.0),
+                   size=np.tile([4.5, 1.85, 1.5], (n, 1)), colour=np.full(n, colour), parked=np.zeros(n, bool))
+    return World(road="straight", lanes=3, static_pts=pts, static_kind=kind, walls_a=wa, walls_b=wb,
+                 wall_occludes=occ, vehicles=veh, ego=0, cav=1, relation="same",
+                 meta={"mode": "test", "road": "straight", "relation": "same"})
+
+
+CASES = {
+    "symmetric road, nobody shared": lambda: _world([]),
+    "platoon of identical cars": lambda: _world([(LANE_W, 40.0 + 9.0 * k) for k in range(5)]),
+    "one co-visible vehicle": lambda: _world([(LANE_W, 52.0)]),
+    "all background on one line": lambda: _world([(-LANE_W, 55.0)], one_side=True),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_hard_situations_give_no_estimate_or_a_right_one(case):
+    outcomes = []
+    for seed in SEEDS:
+        res = evaluate_scene(scene_from_world(CASES[case](), seed, "nominal", name=case), EvalConfig())
+        outcomes.append((res["status"], res["success"], res["confidence"]))
+        assert res["status"] != "fused" or res["success"], (case, seed, res["reason"], res["rte_m"], res["rre_deg"])
+    print(f"\n{case}: {outcomes}")
+
+
+def _line_frame(sender: str, y0: float) -> SharedFrame:
+    """A frame whose only background is a guardrail 6 m to the right (every 0.8 m, 0.2 m noise)."""
+    rng = np.random.default_rng(len(sender))
+    y = np.arange(2.0, 80.0, 0.8)
+    bg = np.column_stack([6.0 + rng.normal(0, 0.2, len(y)), y - y0 + rng.normal(0, 0.1, len(y)), np.zeros(len(y))])
+    return SharedFrame(sender, 0, 0.0, 0.5, ego_velocity=np.array([0.0, 14.0]),
+                       vehicle_points=np.zeros((0, 5), np.float32), vehicle_index=np.zeros(0, np.int32),
+                       vehicle_boxes=np.zeros((0, 6), np.float32), vehicle_box_index=np.zeros(0, np.int32),
+                       vehicle_centers=np.zeros((0, 2), np.float32), vehicle_features=np.zeros((0, 32), np.float32),
+                       background=bg.astype(np.float32))
+
+
+def test_covariance_is_long_along_a_street_with_one_line_of_background():
+    own, other = _line_frame("ego", 0.0), _line_frame("cav", 30.0)     # the CAV 30 m ahead
+    R, t = np.eye(2)[None], np.array([[0.0, 30.0]])
+    X, cov, _ = features(PairContext(own, other), R, t, np.zeros((0, 2), int))
+    w, v = np.linalg.eigh(cov[0][:2, :2])
+    assert abs(v[1, 1]) > 0.99                      # the loosest direction runs along the road (+y)
+    assert np.sqrt(w[1]) > 20 * np.sqrt(w[0]) and np.sqrt(w[0]) < 0.1
+    feats = dict(zip(FEATURES, X[0]))
+    assert feats["bg_linearity"] < 0.01 and feats["n_pairs"] == 0
+
+
+def test_ellipse_and_error_conventions():
+    T_gt, T = np.eye(4), np.eye(4)
+    T[:2, 3] = [2.0, -2.0]
+    a = np.radians(3.0)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    e = pose_error(T_gt, T)
+    assert np.allclose(e, [2.0, -2.0, a])
+    cov = np.diag([1.0, 1.0, np.radians(2.0) ** 2])
+    assert e @ np.linalg.solve(cov, e) > CHI2_3_95 and not inside_ellipse(e, cov)
+    assert inside_ellipse(e, cov * 4)
+
+
+def test_eval_reports_coverage_gross_rate_calibration_and_risk_coverage():
+    def row(conf, success, gross, inside, emitted=True):
+        return {"status": "fused" if emitted else "no-estimate", "confidence": conf, "success": success and emitted,
+                "candidate": {"success": success, "gross": gross, "inside_95": inside, "emitted": emitted}}
+    rows = [row(0.9, True, False, True), row(0.8, True, False, False), row(0.7, False, True, False),
+            row(0.2, False, True, False, emitted=False), {"status": "no-estimate", "confidence": None}]
+    rep = sureness_report(rows)
+    assert rep["coverage"] == pytest.approx(3 / 5) and rep["gross_rate"] == pytest.approx(1 / 3)
+    assert rep["calibration"] == pytest.approx(1 / 3)
+    curve = {x["coverage"]: x for x in rep["risk_coverage"]}
+    assert set(curve) == {0.5, 0.6, 0.7, 0.8}      # 4 candidates among 5 scenes: up to 0.8
+    assert curve[0.6]["gross_rate"] == pytest.approx(1 / 3) and curve[0.8]["gross_rate"] == pytest.approx(0.5)

@@ -1,0 +1,57 @@
+"""Physics as a family: documented ranges, drawn per scene, bad ranges refused naming the key."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mmatch.errors import ConfigError
+from mmatch.evaluate import EvalConfig, evaluate_scene
+from mmatch.sim.physics import KNOBS, PhysicsSample, family
+from mmatch.sim.scenario import make_scene
+
+
+def test_nominal_is_one_point_and_wide_draws_inside_its_ranges():
+    nom = family("nominal")
+    assert all(lo == hi == KNOBS[k].nominal for k, (lo, hi) in nom.ranges.items())
+    wide = family("wide")
+    draws = [wide.draw(np.random.default_rng(s)) for s in range(30)]
+    for key, (lo, hi) in wide.ranges.items():
+        vals = np.array([getattr(d, key) for d in draws])
+        assert np.all(vals >= lo - 1e-9) and np.all(vals <= hi + 1e-9), key
+        if hi > lo and not KNOBS[key].integer:
+            assert np.ptp(vals) > 0.3 * (hi - lo), key        # really drawn, not fixed
+    assert set(KNOBS) == {f for f in PhysicsSample.__dataclass_fields__}
+
+
+@pytest.mark.parametrize("text, key", [
+    ("range_sigma_m = -0.1", "range_sigma_m"),                       # negative noise
+    ("ghost_prob = [0.1, 1.5]", "ghost_prob"),                       # a probability above 1
+    ("miss_prob = [0.2, 0.1]", "miss_prob"),                         # an empty range
+    ("clutter_rate = 'lots'", "clutter_rate"),                       # not a number
+    ("angle_noise = 2.0", "angle_noise"),                            # unknown key
+])
+def test_bad_physics_files_are_refused_naming_the_key(tmp_path, text, key):
+    f = tmp_path / "physics.toml"
+    f.write_text(text + "\n")
+    with pytest.raises(ConfigError, match=f"physics.{key}"):
+        family(f)
+
+
+def test_a_physics_file_narrows_the_wide_family(tmp_path):
+    f = tmp_path / "physics.toml"
+    f.write_text("[physics]\nfalse_detection_rate = [0.9, 1.0]\nangle_noise_scale = 1.2\n")
+    fam = family(f)
+    assert fam.ranges["false_detection_rate"] == (0.9, 1.0) and fam.ranges["angle_noise_scale"] == (1.2, 1.2)
+    assert fam.ranges["ghost_prob"] == KNOBS["ghost_prob"].wide
+
+
+def test_scenes_record_their_physics_and_a_scene_without_covisible_vehicles_is_valid():
+    scenes = [make_scene(5, i, "hard", "wide") for i in range(40)]
+    for s in scenes:
+        vals = s.meta["physics_values"]
+        assert s.meta["physics"] == "wide" and set(vals) == set(KNOBS)
+    few = [s for s in scenes if len(s.gt_pairs) < 2]
+    assert 1 <= len(few) <= 12                                   # about 10 % of the scenes
+    res = evaluate_scene(few[0], EvalConfig())
+    assert "rejected" not in res and res["gt_pairs"] == len(few[0].gt_pairs)
