@@ -32,6 +32,10 @@ class EvalConfig:
 
     descriptor_scale: factor on appearance-descriptor distances (ego/descriptor_scale.py);
     None: `evaluate_dir` measures it on the folder (no labels used), a single scene uses 1.
+    The default is 1: since vehicles are placed on their camera rays the matcher leans on
+    geometry, and shrinking the distances of noisier cameras cost more precision than it
+    gained recall (30 nominal hard scenes, descriptors noisier by a log-normal factor:
+    pair F1 0.683 with the measured scale 0.83, 0.745 without).
     confidence_threshold: estimates less sure than this are "no estimate" (None: the fitted
     model's threshold; 0: every estimate is emitted).
     """
@@ -39,7 +43,7 @@ class EvalConfig:
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
     cav: str = "pipeline"
-    descriptor_scale: float | None = None
+    descriptor_scale: float | None = 1.0
     confidence_threshold: float | None = None
 
 

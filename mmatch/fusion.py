@@ -21,11 +21,15 @@ SOURCE_OWN, SOURCE_OTHER, SOURCE_BOTH = 0, 1, 2
 @dataclass(frozen=True)
 class FusionConfig:
     """Which matcher and aligner run (by name); track: carry T_ego_cav across frames (off for
-    independent scene files, on in the vehicle service)."""
+    independent scene files, on in the vehicle service); descriptor_calibration: keep a running
+    descriptor scale for frames whose context gives none (off: 1, see EvalConfig); confidence:
+    how sure an estimate must be to be fused (a frame agreeing with the track takes the
+    track's fading confidence when higher than its own)."""
 
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
     track: TrackConfig = TrackConfig(max_age_s=0.0)
+    descriptor_calibration: bool = False
     confidence: ConfidenceConfig = ConfidenceConfig()
 
 
@@ -94,8 +98,9 @@ class Fuser:
         else:
             ctx = context or MatchContext()
             if ctx.descriptor_scale is None:
-                ctx = replace(ctx, descriptor_scale=self.descriptor_scale.update(
-                    own.vehicle_features, other.vehicle_features))
+                scale = self.descriptor_scale.update(own.vehicle_features, other.vehicle_features) \
+                    if self.config.descriptor_calibration else 1.0
+                ctx = replace(ctx, descriptor_scale=scale)
             match = self.matcher(own, other, replace(ctx, prior_T=predicted, prior_only=quick))
         tracked = match.T_hint is None and len(match.pairs) == 0 and predicted is not None
         if tracked:
@@ -115,15 +120,15 @@ class Fuser:
         T, a, cands = self._arbitrate(own, other, match, aligned)
         timings["confidence"] = (time.perf_counter() - t2) * 1e3
         confidence = a.confidence
-        if self.tracker.agrees(T, predicted):         # the track's own evidence carries over
-            confidence = float(np.fmax(confidence, self.tracker.confidence(other)))
+        if self.tracker.agrees(T, predicted):          # the track's evidence carries over, fading
+            confidence = float(np.fmax(confidence, self.tracker.confidence(own, other)))
         sure = dict(confidence=confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
                     candidates=cands)
         if confidence < self._threshold:
             return FusionResult("no-estimate", a.reason, pairs=np.zeros((0, 2), np.int32), objects=own_objs,
                                 timings=timings, refused_T=T, **sure)
         self.tracker.update(own, other, T, len(match.pairs), predicted, full_search=not quick,
-                            confidence=confidence)
+                            own_confidence=a.confidence)
         return FusionResult("fused", "tracked" if tracked else "", T, match.pairs,
                             merge_objects(own, other, T, match.pairs), timings, **sure)
 

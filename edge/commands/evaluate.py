@@ -23,9 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
                    help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
     p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
-    p.add_argument("--descriptor-scale", type=_scale, default=None, metavar="auto|FACTOR",
-                   help="factor on appearance-descriptor distances; auto (default): measured on the "
-                        "folder without labels; 1: as the files have them")
+    p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
+                   help="factor on appearance-descriptor distances; auto: measured on the folder "
+                        "without labels; 1 (default): as the files have them")
     p.add_argument("--confidence-threshold", type=_probability, default=None, metavar="P",
                    help="estimates less sure than P (0-1) are 'no estimate'; default: the fitted model's "
                         "threshold; 0 emits every estimate")

@@ -126,16 +126,20 @@ def test_ego_fuses_95_percent_of_its_frames_within_50ms(live):
     stamps = np.array(sorted(m["stamp"] for _, m in steady))
     expected = int(round((stamps[-1] - stamps[0]) * RATE)) + 1
     assert expected >= 0.9 * WINDOW_S * RATE
-    # fused: the CAV frame paired and a transform estimated (from matching, or from the track
-    # when a frame has nothing to match), published within 50 ms of the own capture
-    good = [m for t, m in steady if m["status"] == "fused" and m["cavs"] and (t - m["stamp"]) <= 0.050]
+    # a result for every frame: the CAV frame paired and either a transform estimated (from
+    # matching, or from the track when a frame has nothing to match) or "no estimate" with the
+    # reason when the Ego is not sure (issue 11), published within 50 ms of the own capture
+    good = [m for t, m in steady if m["status"] in ("fused", "no-estimate") and m["cavs"]
+            and (t - m["stamp"]) <= 0.050]
+    fused = [m for m in good if m["status"] == "fused"]
+    assert len(fused) >= 0.6 * len(good)
     lat = np.array([(t - m["stamp"]) * 1e3 for t, m in steady])
     print(f"steady: {len(steady)} results / {expected} frames, fused+<=50ms {len(good)}, "
           f"status fused {sum(m['status'] == 'fused' for _, m in steady)}, "
           f"latency ms median {np.median(lat):.1f} p95 {np.percentile(lat, 95):.1f} max {lat.max():.1f}")
     assert len(good) >= 0.95 * expected
     # the result carries what was fused with what
-    m = good[0]
+    m = fused[0]
     assert m["cavs"][0]["id"] == "cav1" and abs(m["cavs"][0]["dt"]) <= 0.06
     assert m["status"] == "fused" and m["links"] == {"cav1": "up"} and m["cavs"][0]["T_ego_cav"]
     # health summaries on mmatch/v1/ego1/health: rates and drops

@@ -26,6 +26,8 @@ class TrackConfig:
     agree_deg: float = 5.0
     min_pairs: int = 2              # ...as is one with this many matched vehicles
     full_search_every: int = 10     # frames between full (global) searches while tracking
+    confidence_half_life_s: float = 3.0   # a track's carried confidence halves every this long
+                                          # without a frame sure of itself on its own
 
 
 @dataclass
@@ -35,6 +37,7 @@ class _Track:
     other_stamp: float
     since_full: int = 0
     confidence: float = float("nan")
+    confident_stamp: float = float("nan")
 
 
 def _shift(v: np.ndarray, dt: float) -> np.ndarray:
@@ -73,10 +76,14 @@ class Tracker:
         own_new_from_old = np.linalg.inv(_shift(_velocity(own), dt_own))
         return own_new_from_old @ tr.T @ _shift(_velocity(other), dt_other)
 
-    def confidence(self, other: SharedFrame) -> float:
-        """The confidence of the full-search estimate the sender's track rests on (NaN: no track)."""
+    def confidence(self, own: SharedFrame, other: SharedFrame) -> float:
+        """What the sender's track vouches for at the own frame's stamp: the confidence of the last
+        estimate that was sure on its own, halving every confidence_half_life_s since (NaN: no track)."""
         tr = self._tracks.get(other.sender)
-        return tr.confidence if tr is not None else float("nan")
+        if tr is None or not np.isfinite(tr.confidence):
+            return float("nan")
+        age = max(float(own.stamp) - tr.confident_stamp, 0.0)
+        return float(tr.confidence * 0.5 ** (age / max(self.cfg.confidence_half_life_s, 1e-6)))
 
     def agrees(self, T: np.ndarray, predicted: np.ndarray | None) -> bool:
         """Whether an estimate lies within agree_m / agree_deg of the track's prediction."""
@@ -93,12 +100,14 @@ class Tracker:
         return tr is not None and 0 < tr.since_full < self.cfg.full_search_every
 
     def update(self, own: SharedFrame, other: SharedFrame, T: np.ndarray | None, n_pairs: int,
-               predicted: np.ndarray | None, full_search: bool = True, confidence: float = float("nan")) -> bool:
+               predicted: np.ndarray | None, full_search: bool = True,
+               own_confidence: float = float("nan")) -> bool:
         """Keep T as the sender's track when trusted; returns whether it was kept.
 
         full_search: T came from a global search (else from refining the prediction alone);
-        an untrusted result forces the next frame to search globally. confidence: of a
-        full-search T; a track keeps that of the full search it rests on.
+        an untrusted result forces the next frame to search globally. own_confidence: how sure
+        this frame's estimate is on its own; the track keeps the last one at least as sure as
+        what it vouches for (see `confidence`).
         """
         if not self.enabled or T is None:
             old = self._tracks.get(other.sender)
@@ -109,9 +118,13 @@ class Tracker:
         old = self._tracks.get(other.sender)
         if trusted:
             since = 1 if full_search or old is None else old.since_full + 1
-            conf = confidence if full_search or old is None else max(confidence, old.confidence)
+            carried = self.confidence(own, other) if old is not None else float("nan")
+            if np.isfinite(own_confidence) and not own_confidence < carried:
+                conf, stamp = float(own_confidence), float(own.stamp)
+            else:
+                conf, stamp = (old.confidence, old.confident_stamp) if old is not None else (float("nan"), float("nan"))
             self._tracks[other.sender] = _Track(np.asarray(T, float).copy(), float(own.stamp), float(other.stamp),
-                                                since, float(conf))
+                                                since, conf, stamp)
         elif old is not None:
             old.since_full = 0
         return trusted
