@@ -64,8 +64,10 @@ class DspConfig:
         roadside post in the same Doppler bin, then does not mask a weaker one).
     peak_grouping: keep only cells that are the local maximum of their 3 x 3 neighbourhood; with
         `signature_grouping`, a cell that is not is still kept when its neighbours, projected on
-        its own spatial signature (channel vector), are all weaker: a target at another angle
-        beside a stronger one, not the stronger one's leakage.
+        its own channel vector, are all at least 3 dB weaker (a target at another angle beside a
+        stronger one, not the stronger one's leakage), and a cell is dropped when a cell of its
+        CFAR window's range row or Doppler column is 25 dB stronger along its channel vector (a
+        Hann sidelobe of that cell). See RadarDsp._local_max.
     min_range_m / max_range_m: detections outside are ignored (None = the cfg's max range).
     angle_fft: azimuth FFT size; max_points: keep the strongest points of a frame.
     range_bias_m, channel_phase: calibration of compRangeBiasAndRxChanPhase (channel_phase:

@@ -47,6 +47,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mirror-x", action="store_true", help="mirror the antenna layout in x")
     p.add_argument("--iq-swap", action="store_true", help="Q comes before I in each sample pair")
     p.add_argument("--cfar", choices=("ca", "os"), default="ca", help="CFAR noise estimator")
+    p.add_argument(
+        "--average",
+        choices=("ca", "cago", "caso"),
+        help="override the cfg's CA averaging in range (cfarCfg averageMode 0/1/2)",
+    )
     p.add_argument("--threshold-db", type=float, help="override the cfg's CFAR threshold (dB)")
     p.add_argument(
         "--clutter-removal", choices=("on", "off"), help="override the cfg's clutterRemoval"
@@ -79,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
     overrides: dict = {"cfar": args.cfar}
     if args.threshold_db is not None:
         overrides["threshold_db"] = args.threshold_db
+    if args.average is not None:
+        overrides["average"] = args.average
     if args.clutter_removal is not None:
         overrides["clutter_removal"] = args.clutter_removal == "on"
     geom, dsp = make_dsp(

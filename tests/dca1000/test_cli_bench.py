@@ -87,3 +87,21 @@ def test_dsp_command_options(tmp_path, radar_cfg):
     assert json.loads(out.read_text())["points_per_frame"] == [0, 0, 0, 0]
     assert main([*argv, "--mirror-x"]) == 0  # the same capture read as a mirrored board
     assert json.loads(out.read_text())["points"][0][0][0] > 0
+    assert main([*argv, "--average", "ca"]) == 0  # whole-ring CA instead of the cfg's CASO
+    assert json.loads(out.read_text())["points_per_frame"] == [1, 1, 1, 1]
+
+
+def test_dsp_angle_study_prints_the_tables(capsys):
+    assert main(["dsp", "--angle-study", "--frames", "2", "--seed", "3"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("per band of reported SNR") == 2 and out.count("per |azimuth|") == 2
+    for band in ("5-10", "10-15", "15-20", "20-30", "30-45", ">45"):
+        assert f"{band:>9} " in out
+    assert "vehicles" in out and "point targets" in out and "2 frames per kind, seed 3" in out
+
+
+def test_dsp_command_needs_a_capture_or_the_study(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["dsp", "--cfg", str(CFG_PATH)])
+    assert exc.value.code == 2 and "--adc are required" in capsys.readouterr().err
+    assert main(["dsp", "--angle-study", "--frames", "0"]) == 2
