@@ -175,7 +175,9 @@ def _stats(e: np.ndarray) -> tuple[float, float]:
 
 
 def _rows(
-    sample: StudySample, model: tuple[np.ndarray, np.ndarray], groups: list[tuple[float, float, np.ndarray]]
+    sample: StudySample,
+    model: tuple[np.ndarray, np.ndarray],
+    groups: list[tuple[float, float, np.ndarray]],
 ) -> list[BandRow]:
     m_az, m_el = model
     return [

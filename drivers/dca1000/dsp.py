@@ -296,19 +296,14 @@ class RadarDsp:
             so = ndimage.uniform_filter(power, self.outer, mode=mode) * (od * orr)
             si = ndimage.uniform_filter(power, self.inner, mode=mode) * (idd * ir)
             return np.maximum(so - si, 0) / len(self.ring_d)
-        # box sums over Doppler first (shared), then over one-sided range windows
-        dout = ndimage.uniform_filter1d(power, od, axis=0, mode="wrap")
-        din = ndimage.uniform_filter1d(power, idd, axis=0, mode="wrap")
-        n_o, n_i = orr // 2 + 1, ir // 2 + 1  # one-sided window lengths, centre included
-
-        def half(origin_o: int, origin_i: int) -> np.ndarray:
-            so = ndimage.uniform_filter1d(dout, n_o, axis=1, mode="nearest", origin=origin_o)
-            si = ndimage.uniform_filter1d(din, n_i, axis=1, mode="nearest", origin=origin_i)
-            return np.maximum(so * (od * n_o) - si * (idd * n_i), 0)
-
-        # origin (n - 1) // 2 puts the window on [r - n + 1, r], -(n // 2) on [r, r + n - 1]
-        near = half((n_o - 1) // 2, (n_i - 1) // 2)
-        far = half(-(n_o // 2), -(n_i // 2))
+        # box sums over Doppler first, then over one-sided range windows: the nearer-range sum
+        # [r - n + 1, r] by a running mean, the farther one [r, r + n - 1] is it n - 1 bins on
+        outer = ndimage.uniform_filter1d(power, od, axis=0, mode="wrap")
+        inner = ndimage.uniform_filter1d(power, idd, axis=0, mode="wrap")
+        near_o, far_o = _one_sided(outer, orr // 2 + 1)
+        near_i, far_i = _one_sided(inner, ir // 2 + 1)
+        near = np.maximum(near_o * od - near_i * idd, 0)
+        far = np.maximum(far_o * od - far_i * idd, 0)
         pick = np.minimum if self.config.average == "caso" else np.maximum
         return pick(near, far) / self.half_cells
 
@@ -375,8 +370,12 @@ class RadarDsp:
         if len(d):
             cd = (d[:, None] + self.cross_d[None, :]) % D
             cr = np.clip(r[:, None] + self.cross_r[None, :], 0, R - 1)
-            ok = self._along(spec, d, r, cd, cr, 1.0 / _SIDELOBE_RATIO)
-            d, r = d[ok], r[ok]
+            # only a cell with a far stronger one in its window can be a sidelobe (p(n->c) <= P_n)
+            ask = np.flatnonzero((power[cd, cr] > _SIDELOBE_RATIO * power[d, r][:, None]).any(1))
+            if len(ask):
+                ok = np.ones(len(d), dtype=bool)
+                ok[ask] = self._along(spec, d[ask], r[ask], cd[ask], cr[ask], 1 / _SIDELOBE_RATIO)
+                d, r = d[ok], r[ok]
         return d, r
 
     @staticmethod
@@ -485,6 +484,21 @@ class RadarDsp:
         return np.clip(
             np.where(den < 0, 0.5 * (lm - lp) / np.where(den < 0, den, -1), 0.0), -0.5, 0.5
         )
+
+
+def _one_sided(x: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sums of x over range windows [r - n + 1, r] and [r, r + n - 1] (axis 1, edge values
+    repeated beyond the ends), each (D, R) float32."""
+    R = x.shape[1]
+    near = ndimage.uniform_filter1d(x, n, axis=1, mode="nearest", origin=(n - 1) // 2) * n
+    far = np.empty_like(near)
+    k = max(R - n + 1, 0)
+    far[:, :k] = near[:, n - 1 :]
+    # the last n - 1 bins: the rest of the row, then the last bin repeated
+    tail = x[:, k:]
+    rest = np.cumsum(tail[:, ::-1], axis=1, dtype=np.float64)[:, ::-1]
+    far[:, k:] = rest + (np.arange(k, R) + n - R)[None, :] * x[:, R - 1 : R]
+    return near, far
 
 
 def check_adc_format(cfg) -> None:

@@ -107,7 +107,9 @@ class AngleErrorSpec:
             raise ConfigError(f"channels_el must be >= 0, got {self.channels_el}")
         lo, hi = self.glint_scatterers
         if not 1 <= lo <= hi:
-            raise ConfigError(f"glint_scatterers must be 1 <= min <= max, got {self.glint_scatterers}")
+            raise ConfigError(
+                f"glint_scatterers must be 1 <= min <= max, got {self.glint_scatterers}"
+            )
         if not (math.isfinite(self.row_offset) and self.row_offset > 0):
             raise ConfigError(f"row_offset must be finite and > 0, got {self.row_offset}")
         for name in ("glint_factor", "calib_floor_az_deg", "calib_floor_el_deg"):
@@ -298,7 +300,8 @@ def draw_glint_and_noise(
         n = len(az)
         k = rng.integers(lo, hi + 1, n)
         alive = np.arange(hi)[None, :] < k[:, None]
-        b = np.sqrt(rng.exponential(1.0, (n, hi))) * alive * np.exp(2j * np.pi * rng.random((n, hi)))
+        phase = np.exp(2j * np.pi * rng.random((n, hi)))
+        b = np.sqrt(rng.exponential(1.0, (n, hi))) * alive * phase
         spread = spec.glint_factor * rng.uniform(-0.5, 0.5, (2, n, hi))
         saz = az[:, None] + extent_az_rad[sl, None] * spread[0]
         sel = el[:, None] + extent_el_rad[sl, None] * spread[1]
@@ -346,7 +349,10 @@ def draw_angle_errors(
     Array noise and glint come from `draw_glint_and_noise`, then the calibration bias and floor.
     """
     snr, az, el, ea, ee = np.broadcast_arrays(
-        *(np.asarray(a, dtype=np.float64) for a in (snr_db, az_rad, el_rad, extent_az_rad, extent_el_rad))
+        *(
+            np.asarray(a, dtype=np.float64)
+            for a in (snr_db, az_rad, el_rad, extent_az_rad, extent_el_rad)
+        )
     )
     shape = snr.shape
     d_az, d_el = draw_glint_and_noise(

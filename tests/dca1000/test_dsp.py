@@ -342,7 +342,8 @@ def test_adc_formats_the_raw_path_cannot_read_are_refused(radar_cfg, adc, why):
 
 def test_tdm_compensation_uses_the_sub_bin_doppler(radar_cfg):
     """Half a Doppler bin off the grid, compensating the TX slots with the whole bin only leaves
-    0.07 deg of azimuth error at 40 deg (TX2 fires 2 Tc after TX0); the sub-bin Doppler removes it."""
+    0.07 deg of azimuth error at 40 deg (TX2 fires 2 Tc after TX0); the sub-bin Doppler removes
+    it."""
     geom, dsp = make_dsp(radar_cfg)
     for k in (3, -7, 12):
         for frac in (0.0, 0.25, 0.5):

@@ -153,7 +153,8 @@ def test_a_very_strong_target_is_one_point(path, caplog):
     extra_without = 0
     for snr in (20.0, 30.0, 40.0):
         for frac in (0.0, 0.5):
-            t = Target((60 + frac) * dsp.range_step, (10 + frac) * dsp.doppler_step, -40.0, 0.0, snr)
+            r, v = (60 + frac) * dsp.range_step, (10 + frac) * dsp.doppler_step
+            t = Target(r, v, -40.0, 0.0, snr)
             cube = synth_cube(c, geom, [t], antenna, rng=np.random.default_rng(1))
             pts = dsp.process(cube).points
             assert len(pts) == 1 and found(pts, t, dsp), (snr, frac, pts)
