@@ -196,6 +196,7 @@ class RadarDsp:
         # the window's coherent gain is divided out so power stays in ADC units
         self.win_r /= self.win_r.mean()
         self.win_d /= self.win_d.mean()
+        self.win_rd = self.win_d[:, None, None] * self.win_r[None, None, :]  # (L, 1, N)
         max_r = config.max_range_m if config.max_range_m is not None else chirp.max_range_m
         self.r_lo = max(
             1, int(math.ceil((config.min_range_m + config.range_bias_m) / self.range_step))
@@ -269,15 +270,16 @@ class RadarDsp:
             raise ConfigError(
                 f"cube shape {cube.shape} does not match the cfg {(self.L, self.V, self.N)}"
             )
-        x = cube * self.win_r
+        # both windows in one pass (they commute with the range FFT)
+        x = cube * self.win_rd
         x = sfft.fft(x, n=self.NR, axis=2, workers=1, overwrite_x=True)
         if self.config.clutter_removal:
-            # subtract the Doppler-window-weighted mean over chirps: it zeroes Doppler bin 0
-            # exactly, and a moving target's (Hann-sidelobe-small) share of it is negligible,
-            # whereas the plain mean leaves a -30 dB ghost of every moving target at Doppler 0
-            m = np.tensordot(self.win_d / self.win_d.sum(), x, axes=(0, 0))
-            x -= m[None]
-        x *= self.win_d[:, None, None]
+            # subtract the Doppler-window-weighted mean over chirps (times the window, which is
+            # already on): it zeroes Doppler bin 0 exactly, and a moving target's (Hann-sidelobe-
+            # small) share of it is negligible, whereas the plain mean leaves a -30 dB ghost of
+            # every moving target at Doppler 0
+            m = x.sum(axis=0) / self.win_d.sum()
+            x -= m[None] * self.win_d[:, None, None]
         return sfft.fft(x, axis=0, workers=1, overwrite_x=True)
 
     def detection_map(self, spec: np.ndarray) -> np.ndarray:
