@@ -163,13 +163,14 @@ class O3DICPAligner(_Open3DPeer):
 
 
 class O3DFGRAligner(_Open3DPeer):
-    """Open3D Fast Global Registration on FPFH (in-plane normals), refined by point-to-point ICP."""
+    """Open3D Fast Global Registration on FPFH (in-plane normals, seeded), refined by point-to-point ICP."""
 
     name = "o3d-fgr"
 
     def estimate(self, src, dst):
         reg, c = self.o3d.pipelines.registration, self.cfg
         s, d = self.cloud(src, normals=True), self.cloud(dst, normals=True)
+        self.o3d.utility.random.seed(c.seed)
         opt = reg.FastGlobalRegistrationOption(use_absolute_scale=True, decrease_mu=True,
                                                maximum_correspondence_distance=c.feature_dist_m,
                                                iteration_number=200)
