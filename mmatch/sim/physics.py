@@ -40,17 +40,20 @@ class Knob:
 
 
 KNOBS: dict[str, Knob] = {
-    # radar: angle accuracy (see mmatch/sim/radar_errors.py for the model they feed)
-    "angle_noise_scale": Knob(1.0, (0.7, 1.6), "factor on the array-bound + glint angle errors", log=True,
+    # radar: angle accuracy (the model and its grounding in our DSP: mmatch/sim/radar_errors.py)
+    "angle_noise_scale": Knob(1.0, (0.8, 1.5), "factor on the DSP-grounded angle errors", log=True,
                               lo_limit=0.05, hi_limit=10.0),
-    "calibration_residual_deg": Knob(0.35, (0.1, 0.6), "per-radar azimuth calibration residual, deg (1 sigma)",
-                                     hi_limit=10.0),
-    "glint_factor": Knob(0.25, (0.1, 0.4), "angle wander of an extended target, share of its angular extent",
-                         hi_limit=2.0),
-    "virtual_channels_az": Knob(8, (8, 12), "virtual channels across azimuth", lo_limit=2, hi_limit=256,
-                                integer=True),
-    "virtual_channels_el": Knob(4, (3, 5), "virtual channels across elevation (an xWR18xx's elevated TX row: "
-                                "4 RX pairs)", lo_limit=1, hi_limit=64, integer=True),
+    "channels_az": Knob(8, (8, 12), "virtual channels across azimuth", lo_limit=2, hi_limit=256, integer=True),
+    "channels_el": Knob(4, (2, 4), "virtual channels of the raised row (elevation)", lo_limit=0, hi_limit=64,
+                        integer=True),
+    "glint_factor": Knob(1.0, (0.8, 1.3), "spread of an extended target's scatterers, share of its angular extent",
+                         hi_limit=5.0),
+    "calib_bias_az_deg": Knob(0.25, (0.0, 0.5), "largest per-radar azimuth calibration bias, deg", hi_limit=10.0),
+    "calib_bias_el_deg": Knob(0.5, (0.0, 1.0), "largest per-radar elevation calibration bias, deg", hi_limit=10.0),
+    "calib_floor_az_deg": Knob(0.3, (0.1, 0.5), "per-point azimuth calibration residual, deg (1 sigma)",
+                               hi_limit=10.0),
+    "calib_floor_el_deg": Knob(0.6, (0.2, 1.0), "per-point elevation calibration residual, deg (1 sigma)",
+                               hi_limit=10.0),
     "range_sigma_m": Knob(0.06, (0.04, 0.15), "range noise, m (1 sigma)", hi_limit=5.0),
     "doppler_sigma_mps": Knob(0.06, (0.04, 0.15), "Doppler noise at high SNR, m/s (1 sigma)", hi_limit=5.0),
     "wheel_share": Knob(0.12, (0.05, 0.25), "share of a moving vehicle's returns from its wheels (micro-Doppler)",
@@ -132,10 +135,13 @@ class PhysicsSample:
     """The constants of one scene (every knob of KNOBS, drawn)."""
 
     angle_noise_scale: float
-    calibration_residual_deg: float
+    channels_az: float
+    channels_el: float
     glint_factor: float
-    virtual_channels_az: float
-    virtual_channels_el: float
+    calib_bias_az_deg: float
+    calib_bias_el_deg: float
+    calib_floor_az_deg: float
+    calib_floor_el_deg: float
     range_sigma_m: float
     doppler_sigma_mps: float
     wheel_share: float

@@ -22,6 +22,7 @@ import numpy as np
 
 from mmatch.sim.geometry import box_corners, segments_block
 from mmatch.sim.physics import PhysicsSample, nominal_sample
+from mmatch.sim.radar_errors import AngleErrorSpec, draw_angle_errors
 from mmatch.sim.world import FACADE, GUARDRAIL, POLE, VEGETATION, World
 
 LABEL_BACKGROUND = -1
@@ -44,6 +45,7 @@ WHEEL_LOSS_DB = 6.0
 GHOST_LOSS_DB = 9.0
 SNR_REPORT_SIGMA_DB = 1.0     # the radar's own SNR estimate is noisy
 SNR_REF_DB = 15.0             # range and Doppler noise are the nominal ones above this SNR
+CELL_SHARE = 0.35             # share of a vehicle's angular extent that shares one range-Doppler cell
 
 
 def snr_mean_db(snr_10m: np.ndarray, exponent: np.ndarray, rng_m: np.ndarray, offset_db: float) -> np.ndarray:
@@ -64,54 +66,15 @@ def detected_snr(rng: np.random.Generator, mean_db: np.ndarray, threshold_db: fl
     return np.maximum(snr, threshold_db - 3.0)
 
 
-@dataclass(frozen=True)
-class ArrayCalibration:
-    """One radar's angle calibration residual: a bias and a ripple across azimuth (rad)."""
-
-    bias_az: float = 0.0
-    ripple_az: float = 0.0
-    ripple_phase: float = 0.0
-    bias_el: float = 0.0
-
-    @classmethod
-    def draw(cls, rng: np.random.Generator, residual_deg: float) -> "ArrayCalibration":
-        s = np.radians(residual_deg)
-        return cls(float(rng.normal(0, s * 0.5)), float(abs(rng.normal(0, s))), float(rng.uniform(0, 2 * np.pi)),
-                   float(rng.normal(0, s)))
-
-    def error(self, az: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(azimuth, elevation) errors (rad) at azimuths az (rad)."""
-        return self.bias_az + self.ripple_az * np.sin(3.0 * az + self.ripple_phase), np.full(len(az), self.bias_el)
-
-
-def array_bound_sigma(snr_db: np.ndarray, angle: np.ndarray, channels: float) -> np.ndarray:
-    """Cramer-Rao bound (rad) of the angle of one point target on a half-wavelength uniform array.
-
-    var(sin theta) = 6 / (pi^2 N (N^2 - 1) SNR_channel); the SNR a TI radar reports is that of
-    the detection map, summed over the N virtual channels (SNR_channel = SNR / N); the angle
-    error grows as 1 / cos(theta).
-    """
-    n = max(float(channels), 2.0)
-    snr = 10.0 ** (np.asarray(snr_db) / 10.0) / n
-    su = np.sqrt(6.0 / (np.pi ** 2 * n * (n * n - 1.0) * snr))
-    return su / np.maximum(np.cos(angle), 0.2)
-
-
-def draw_angle_errors(rng: np.random.Generator, snr_db: np.ndarray, az: np.ndarray, el: np.ndarray,
-                      extent_az: np.ndarray, phys: PhysicsSample,
-                      calibration: ArrayCalibration | None) -> tuple[np.ndarray, np.ndarray]:
-    """Azimuth and elevation errors (rad) per point: array bound x noise scale, glint over the
-    target's angular extent (uniform, +- glint_factor x extent / 2), calibration residual."""
-    n = len(snr_db)
-    s_az = phys.angle_noise_scale * array_bound_sigma(snr_db, az, phys.virtual_channels_az)
-    s_el = phys.angle_noise_scale * array_bound_sigma(snr_db, el, phys.virtual_channels_el)
-    glint = phys.glint_factor * extent_az * rng.uniform(-0.5, 0.5, n)
-    d_az = rng.normal(0, 1, n) * s_az + glint
-    d_el = rng.normal(0, 1, n) * s_el + 0.5 * glint
-    if calibration is not None:
-        c_az, c_el = calibration.error(az)
-        d_az, d_el = d_az + c_az, d_el + c_el
-    return d_az, d_el
+def angle_spec(phys: PhysicsSample, rng: np.random.Generator) -> AngleErrorSpec:
+    """One radar's angle error constants (mmatch/sim/radar_errors.py) under the scene's physics:
+    the array and glint from the sample, the calibration bias drawn for this radar within
+    +- calib_bias_*_deg, the per-point floors as given."""
+    return AngleErrorSpec(channels_az=int(phys.channels_az), channels_el=int(phys.channels_el),
+                          glint_factor=phys.glint_factor,
+                          calib_bias_az_deg=float(rng.uniform(-1, 1) * phys.calib_bias_az_deg),
+                          calib_bias_el_deg=float(rng.uniform(-1, 1) * phys.calib_bias_el_deg),
+                          calib_floor_az_deg=phys.calib_floor_az_deg, calib_floor_el_deg=phys.calib_floor_el_deg)
 
 
 def _angular_extent(corners: np.ndarray, origin: np.ndarray) -> float:
@@ -162,13 +125,14 @@ def _wheels(rng, centre, yaw, size, n):
 
 def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_velocity: np.ndarray,
                   own: int, rng: np.random.Generator, spec: RadarSpec = RadarSpec(),
-                  phys: PhysicsSample | None = None, calibration: ArrayCalibration | None = None
+                  phys: PhysicsSample | None = None, array: AngleErrorSpec | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Render one radar frame.
 
     world_T_radar: 4x4 pose of the radar; radar_velocity: (2,) its world velocity, m/s;
     own: index of the carrying vehicle (never seen); phys: the scene's constants (nominal
-    when None); calibration: this radar's angle calibration residual (none when None).
+    when None); array: this radar's angle error constants (from phys, uncalibrated bias 0,
+    when None).
     Returns points float32 (N, 5) x, y, z, doppler, snr in the radar frame and labels int32
     (N,) (vehicle id, -1 background, -2 noise/ghost).
     """
@@ -208,7 +172,11 @@ def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_veloc
     world_vel = [np.zeros((len(sp), 2))]
     labels = [np.full(len(sp), LABEL_BACKGROUND)]
     snr_mean = [snr_mean_db(s10, expo, rng_xy, phys.snr_offset_db)]
-    extent = [np.zeros(len(sp))]
+    # the part of a structure sharing one range-Doppler cell: a bush or a stretch of facade
+    # spans some of a degree, a pole or a guardrail post hardly any (angle glint, radar_errors.py)
+    size = np.select([kind == VEGETATION, kind == FACADE, kind == GUARDRAIL], [rng.uniform(0.5, 3.0, len(kind)),
+                     rng.uniform(0.3, 1.5, len(kind)), np.full(len(kind), 0.3)], 0.0)
+    extent = [size / np.maximum(rng_xy, 1.0)]
 
     # ---- vehicles (moving and parked)
     vel = veh.velocity
@@ -251,7 +219,7 @@ def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_veloc
         world_vel.append(v_pts)
         labels.append(np.full(len(p), k))
         snr_mean.append(snr_mean_db(s_db, np.full(len(p), 4.0), np.full(len(p), d), phys.snr_offset_db))
-        extent.append(np.full(len(p), ext))
+        extent.append(np.full(len(p), CELL_SHARE * ext))
         ghost_src.append((p, v_pts, snr_mean[-1], ext))
 
     # ---- multipath ghosts mirrored across guardrails and facades
@@ -302,8 +270,9 @@ def observe_radar(world: World, t: float, world_T_radar: np.ndarray, radar_veloc
     weak = np.maximum(1.0, 10.0 ** ((SNR_REF_DB - snr) / 20.0))           # amplitude ratio below the reference
     r_n = rng3 + rng.normal(0, 1, n) * (phys.range_sigma_m * weak + 0.001 * rng3)
     dop_n = doppler + rng.normal(0, 1, n) * phys.doppler_sigma_mps * weak
-    d_az, d_el = draw_angle_errors(rng, snr, az, el, ext, phys, calibration)
-    az_n, el_n = az + d_az, el + d_el
+    spec = array or angle_spec(phys, np.random.default_rng(0))
+    d_az, d_el = draw_angle_errors(rng, snr, az, el, ext, 0.5 * ext, spec)
+    az_n, el_n = az + phys.angle_noise_scale * d_az, el + phys.angle_noise_scale * d_el
     snr_rep = np.maximum(snr + rng.normal(0, SNR_REPORT_SIGMA_DB, n), 0.0)
     pts = np.column_stack([r_n * np.cos(el_n) * np.sin(az_n), r_n * np.cos(el_n) * np.cos(az_n),
                            r_n * np.sin(el_n), dop_n, snr_rep]).astype(np.float32)

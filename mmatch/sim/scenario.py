@@ -20,7 +20,8 @@ import numpy as np
 from mmatch.sim.camera import CameraResponse, CameraSpec, camera_pose_from, observe_camera
 from mmatch.sim.geometry import pose_matrix
 from mmatch.sim.physics import PhysicsFamily, PhysicsSample, family
-from mmatch.sim.radar import ArrayCalibration, RadarSpec, observe_radar
+from mmatch.sim.radar import RadarSpec, angle_spec, observe_radar
+from mmatch.sim.radar_errors import AngleErrorSpec
 from mmatch.sim.world import World, build_world
 from mmatch.types import CameraModel, Scene, View
 
@@ -42,7 +43,7 @@ class Mount:
     response: CameraResponse       # this camera's exposure and colour response
     depth_sigma_rel: float         # monocular depth error of its detector
     extrinsic_error: np.ndarray    # 4x4: the calibrated T_cam_radar is extrinsic_error @ the true one
-    calibration: ArrayCalibration  # the radar's angle calibration residual
+    array: AngleErrorSpec          # the radar's angle error constants (its own calibration bias)
 
 
 def _small_rigid(rng: np.random.Generator, max_rot_deg: float, max_trans_m: float) -> np.ndarray:
@@ -74,7 +75,7 @@ def draw_mount(rng: np.random.Generator, spec: CameraSpec, phys: PhysicsSample, 
                                          pixels=int(phys.descriptor_pixels)),
                  depth_sigma_rel=float(phys.depth_sigma_rel * rng.uniform(0.75, 1.25)),
                  extrinsic_error=_small_rigid(rng, phys.extrinsic_rot_err_deg, phys.extrinsic_trans_err_m),
-                 calibration=ArrayCalibration.draw(rng, phys.calibration_residual_deg))
+                 array=angle_spec(phys, rng))
 
 
 @dataclass
@@ -235,7 +236,7 @@ class Scenario:
         own = world.ego if role == "ego" else world.cav
         w_T_r, vel = self.radar_pose(world, role, t_local)
         m = self.mounts[role]
-        pts, labels = observe_radar(world, t_local, w_T_r, vel, own, rng, self.radar, self.phys, m.calibration)
+        pts, labels = observe_radar(world, t_local, w_T_r, vel, own, rng, self.radar, self.phys, m.array)
         cam, T_cam_radar = self.camera_model(role)
         w_T_cam = w_T_r @ np.linalg.inv(T_cam_radar)
         boxes, feats, ids = observe_camera(world, t_local, w_T_cam, cam.K, own, rng, self.cam,
