@@ -51,8 +51,8 @@ eval-hard: $(STAMP)
 
 # the comparison of the README (Open3D peers need `pip install 'mmatch[baselines]'`, else skipped)
 report-hard: $(STAMP)
-	$(BIN)/mmatch sim --out data/hard --n 200 --seed 0 --mode hard --jobs 2
-	$(BIN)/mmatch report data/hard --out data/report-hard --jobs 2
+	$(BIN)/mmatch sim --out data/hard-wide --n 200 --seed 0 --mode hard --physics wide --jobs 2
+	$(BIN)/mmatch report data/hard-wide --out data/report-hard-wide --jobs 2 --confidence-threshold 0
 
 clean:
 	rm -rf $(VENV) mmatch-demo bench-results train-results data

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from mmatch.edge.commands.args import positive_int
+from mmatch.edge.commands.evaluate import _probability, _scale
 
 HELP = "compare MMatch, its ablation and point-cloud peers on a folder of scene files (tables, plots)"
 
@@ -22,6 +23,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
                    help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
     p.add_argument("--jobs", type=positive_int, default=2, help="worker processes")
+    p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
+                   help="as mmatch eval: factor on appearance-descriptor distances; auto: measured on the "
+                        "folder without labels; 1: as the files have them")
+    p.add_argument("--confidence-threshold", type=_probability, default=None, metavar="P",
+                   help="as mmatch eval: estimates less sure than P (0-1) are 'no estimate'; default: the "
+                        "fitted model's threshold; 0 emits every estimate")
     p.add_argument("--no-plots", action="store_true", help="tables and JSON only (no matplotlib needed)")
 
 
@@ -29,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
     from mmatch.errors import ConfigError, ParseError
     from mmatch.report.methods import default_methods, resolve
+    from mmatch.evaluate import EvalConfig
     from mmatch.report.run import evaluate_methods, write_report
 
     if Path(args.out).exists() and not Path(args.out).is_dir():
@@ -42,8 +50,9 @@ def run(args: argparse.Namespace) -> int:
         from mmatch.report.plots import pyplot
         pyplot()                                    # fail now, not after the run, without matplotlib
     print(f"report: {len(methods)} methods on {args.folder} ({args.jobs} jobs)", flush=True)
-    run_ = evaluate_methods(args.folder, methods, args.cav, args.jobs,
-                            Progress("report"))
+    base = EvalConfig(cav=args.cav, descriptor_scale=args.descriptor_scale,
+                      confidence_threshold=args.confidence_threshold)
+    run_ = evaluate_methods(args.folder, methods, base, args.jobs, Progress("report"))
     for m, why in run_.skipped:
         print(f"skipped {m.key}: {why}", file=sys.stderr)
     if not run_.runs:

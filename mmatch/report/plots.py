@@ -224,7 +224,7 @@ def risk_coverage_figure(out: Path, rep: dict) -> list[str]:
         sr = [float(p.get("success_rate", math.nan)) for p in rc]
         if np.isfinite(sr).any():
             b.plot(cov, sr, label=m["label"], ms=4, **st)
-    a.set_xlabel("coverage (share of estimates kept, most confident first)")
+    a.set_xlabel("coverage (share of scenes given an estimate, most confident first)")
     a.set_ylabel("gross-error rate (RRE > 10 deg or RTE > 5 m)")
     a.set_title("risk against coverage")
     b.set_xlabel("coverage")

@@ -16,7 +16,7 @@ import platform
 import sys
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field, is_dataclass
+from dataclasses import asdict, dataclass, field, is_dataclass, replace
 from pathlib import Path
 
 from mmatch.evaluate import EvalConfig, evaluate_file, folder_descriptor_scale, report
@@ -46,6 +46,7 @@ class ReportRun:
     runs: list[MethodRun]
     skipped: list[tuple[Method, str]] = field(default_factory=list)
     facts: dict[str, dict | None] = field(default_factory=dict)
+    confidence_threshold: float | None = None
 
 
 def _task(args: tuple[int, str, EvalConfig]) -> tuple[int, dict]:
@@ -53,12 +54,16 @@ def _task(args: tuple[int, str, EvalConfig]) -> tuple[int, dict]:
     return k, evaluate_file(path, cfg)
 
 
-def evaluate_methods(folder: str | Path, methods: list[Method], cav: str = "pipeline", jobs: int = 1,
-                     progress: Callable[[int, int], None] | None = None,
-                     descriptor_scale: float | None = None) -> ReportRun:
-    """Evaluate `methods` on every *.npz of `folder`; methods whose extra is missing are skipped."""
+def evaluate_methods(folder: str | Path, methods: list[Method], base: EvalConfig = EvalConfig(), jobs: int = 1,
+                     progress: Callable[[int, int], None] | None = None) -> ReportRun:
+    """Evaluate `methods` on every *.npz of `folder`; methods whose extra is missing are skipped.
+
+    base: the settings every method shares (cav, descriptor scale, confidence threshold), as
+    `mmatch eval` takes them; its matcher and aligner are replaced by each method's. A
+    descriptor scale of None is measured once on the folder, as `evaluate_dir` does.
+    """
     files = sorted(str(p) for p in Path(folder).glob("*.npz"))
-    scale = folder_descriptor_scale(files) if descriptor_scale is None else descriptor_scale
+    scale = folder_descriptor_scale(files) if base.descriptor_scale is None else base.descriptor_scale
     ready, skipped = [], []
     for m in methods:
         why = unavailable(m)
@@ -67,7 +72,7 @@ def evaluate_methods(folder: str | Path, methods: list[Method], cav: str = "pipe
             skipped.append((m, why))
         else:
             ready.append(m)
-    cfgs = [EvalConfig(matcher=m.matcher, aligner=m.aligner, cav=cav, descriptor_scale=scale) for m in ready]
+    cfgs = [replace(base, matcher=m.matcher, aligner=m.aligner, descriptor_scale=scale) for m in ready]
     tasks = [(k, f, cfg) for f in files for k, cfg in enumerate(cfgs)]
     per_method: list[list[dict]] = [[] for _ in ready]
     if jobs <= 1:
@@ -86,7 +91,7 @@ def evaluate_methods(folder: str | Path, methods: list[Method], cav: str = "pipe
             pool.shutdown()
     runs = [MethodRun(m, cfg, report(res, cfg), res) for m, cfg, res in zip(ready, cfgs, per_method)]
     facts = {f: scene_facts(f) for f in files}
-    return ReportRun(str(folder), files, cav, scale, runs, skipped, facts)
+    return ReportRun(str(folder), files, base.cav, scale, runs, skipped, facts, base.confidence_threshold)
 
 
 def _component_config(kind: str, name: str) -> dict | None:
@@ -152,7 +157,7 @@ def build(run: ReportRun) -> dict:
     return {
         "format": FORMAT, "folder": run.folder, "files": len(run.files),
         "rejected": ref.eval["rejected"] if ref else 0, "cav": run.cav,
-        "descriptor_scale": run.descriptor_scale,
+        "descriptor_scale": run.descriptor_scale, "confidence_threshold": run.confidence_threshold,
         "reference": ref.method.key if ref else None,
         "physics": ", ".join(f"{k} {v}" for k, v in sorted(Counter(f["physics"] for f in known).items())),
         "roads": ", ".join(f"{k} {v}" for k, v in sorted(Counter(f["road"] for f in known).items())),

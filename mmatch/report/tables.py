@@ -170,9 +170,12 @@ def stage_table(methods: list[dict]) -> list[str]:
 def markdown(rep: dict, figures: list[str]) -> str:
     """The report's summary.md: data, methods table, breakdowns, latency, skipped methods, figures."""
     methods = rep["methods"]
+    thr = rep.get("confidence_threshold")
+    gate = "the fitted model's" if thr is None else f"{thr:g}"
     out = [f"# MMatch report: {rep['folder']}", "",
            f"{rep['files']} scene files ({rep['rejected']} rejected), CAV side `{rep['cav']}`, descriptor scale "
-           f"{rep['descriptor_scale']:.3f}; physics: {rep['physics']}; roads: {rep['roads']}.",
+           f"{rep['descriptor_scale']:.3f}, confidence threshold {gate}; physics: {rep['physics']}; "
+           f"roads: {rep['roads']}.",
            "Success: RRE < a deg and RTE < b m over all scenes (no estimate = failure); RRE / RTE over the "
            "scenes with an estimate. Times are medians per frame pair on a shared machine (whole path: "
            "CAV-side processing, codec, matching, alignment); × MMatch is the ratio of those medians.", ""]

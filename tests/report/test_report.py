@@ -70,6 +70,18 @@ def test_every_number_equals_mmatch_eval(report_dir, small_hard, tmp_path):
     assert cfg["methods"][0]["aligner_config"]["refine"]["iterations"] > 0
 
 
+def test_eval_options_pass_through(small_hard, tmp_path):
+    out = tmp_path / "rep"
+    flags = ["--confidence-threshold", "0", "--descriptor-scale", "auto"]
+    assert main(["report", str(small_hard), "--out", str(out), "--methods", "mmatch", "--jobs", "1",
+                 "--no-plots", *flags]) == 0
+    mine = json.loads((out / "report.json").read_text())["methods"][0]["eval"]
+    assert main(["eval", str(small_hard), "--json", str(tmp_path / "e.json"), *flags]) == 0
+    ev = json.loads((tmp_path / "e.json").read_text())
+    assert ev["config"]["confidence_threshold"] == 0 and ev["coverage"] == 1.0
+    _same({k: v for k, v in mine.items() if k not in TIMING_KEYS}, {k: v for k, v in ev.items() if k not in TIMING_KEYS})
+
+
 def test_breakdowns_cover_every_scene(report_dir):
     rep = json.loads((report_dir / "report.json").read_text())
     for m in rep["methods"]:
