@@ -121,6 +121,17 @@ def evaluate(net: RMNet, samples: list[Sample], cfg: FitConfig) -> tuple[float, 
     return loss / max(n, 1), (tp, pred, gt, kept), pos, neg
 
 
+def _batches(sizes: np.ndarray, batch: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """Batches of samples of similar size (padding costs the largest graph's size), in random order.
+
+    Samples are ordered by size with a random jitter (so batches differ between epochs), cut
+    into batches, and the batches shuffled.
+    """
+    order = np.argsort(np.log1p(sizes) + rng.uniform(0, 0.5, len(sizes)), kind="stable")
+    out = [order[lo:lo + batch] for lo in range(0, len(order), batch)]
+    return [out[i] for i in rng.permutation(len(out))]
+
+
 def fit(train: list[Sample], val: list[Sample], cfg: FitConfig = FitConfig(),
         progress: Callable[[int, int], None] | None = None,
         on_epoch: Callable[[EpochStats, list[EpochStats]], None] | None = None) -> tuple[RMNet, list[EpochStats]]:
@@ -134,14 +145,14 @@ def fit(train: list[Sample], val: list[Sample], cfg: FitConfig = FitConfig(),
     history: list[EpochStats] = []
     best, best_state, stale = np.inf, copy.deepcopy(net.state_dict()), 0
     pool = train + [s.swapped() for s in train]
-    batches_per_epoch = (len(pool) + cfg.batch - 1) // cfg.batch
+    sizes = np.array([len(s.xa) * len(s.xb) for s in pool], float)
+    batches_per_epoch = len(_batches(sizes, cfg.batch, np.random.default_rng(0)))
     for epoch in range(cfg.epochs):
         t0 = time.perf_counter()
         net.train()
-        order = rng.permutation(len(pool))
         total = 0.0
-        for k, lo in enumerate(range(0, len(pool), cfg.batch)):
-            b = collate([pool[i] for i in order[lo:lo + cfg.batch]])
+        for k, idx in enumerate(_batches(sizes, cfg.batch, rng)):
+            b = collate([pool[i] for i in idx])
             mask = b["ma"].unsqueeze(2) * b["mb"].unsqueeze(1)
             loss = weighted_bce(_forward(net, b), b["target"], mask)
             opt.zero_grad()

@@ -127,12 +127,11 @@ mmatch/train/model.py). Written by `mmatch train`; inputs and shapes in mmatch/e
 
 - Size: {card['parameters']} parameters, {card['bytes']} bytes, {card['steps']} message-passing steps
   (32-d nodes, 16-d edges), ONNX opset 18, one file.
-- Data: {d['frame_pairs']} simulated frame pairs with 2+ vehicles a view out of {d['scenes']} scenes
-  ({d['modes']}, simulation seed {d['simulation_seed']}) plus {d['dense_scenes']} dense-traffic hard scenes
-  ({d['dense_vehicles']} other vehicles, seed {d['dense_seed']}) plus {d['synthetic_scenes']} synthetic dense frame
-  pairs ({d['synthetic_vehicles']} vehicles a view, mmatch/ego/match/synthetic.py, seed {d['synthetic_seed']});
-  {d['cav_side']}; each pair also seen from
-  the other vehicle. Split by scene: {d['train']} training, {d['validation']} validation.
+- Data: {d['frame_pairs']} frame pairs with 2+ vehicles a view: simulated scenes ({d['scenes']}, {d['modes']},
+  simulation seed {d['simulation_seed']}) plus {d['dense_scenes']} dense-traffic hard scenes ({d['dense_vehicles']} other
+  vehicles, seed {d['dense_seed']}), both through {d['cav_side']}, plus {d['synthetic_scenes']} synthetic dense
+  frame pairs ({d['synthetic_vehicles']} vehicles a view, mmatch/ego/match/synthetic.py, seed {d['synthetic_seed']});
+  each pair also seen from the other vehicle. Split by scene: {d['train']} training, {d['validation']} validation.
 - Training: weighted BCE over the steps (omega = #negative / #positive), AdamW, cosine schedule,
   seed {t['seed']}, early stopping on the validation loss: {t['epochs_run']} epochs run, best {t['best_epoch']};
   torch {t['torch']}, {t['threads']} thread(s); {t['data_seconds']} s {'loading the saved samples' if t['samples_reused'] else 'simulating'}, {t['total_seconds']} s in all.

@@ -66,7 +66,8 @@ class RMNetConfig:
     seeds: int = 16                     # best candidates that seed two-pair hypotheses
     max_hypotheses: int = 1200          # coarse hypotheses kept (by the product of their seeds' scores)
     coarse_gate_sigma: float = 3.0      # a candidate pair is explained within this Mahalanobis distance
-    refine_hypotheses: int = 6          # best distinct coarse hypotheses refined and rescored
+    refine_hypotheses: int = 6          # best distinct coarse hypotheses refined and rescored ...
+    refine_pair_budget: int = 2400      # ... fewer in dense traffic: at most this / (Va x Vb), at least 2
     min_support: float = 0.5            # coarse evidence (explained score mass) a transform needs
     prob_likeness: float = 2.0          # network score -> likeness (consensus units): 2 p - 0.5
     desc_share: float = 0.0             # share of the consensus descriptor likeness in the likeness
@@ -74,6 +75,7 @@ class RMNetConfig:
     assign_gate_sigma: float = 2.5
     assign_min_prob: float = 0.05       # pairs the network scores below this are never matched
     assign_prob_weight: float = 1.0     # weight of (1 - p) in the assignment cost
+    assign_alike_desc: float = 0.15     # > 0: a pair this alike by descriptor passes the score gate too
     budget_ms: float = 30.0             # CPU ms per frame; past it: best verified answer so far
     consensus: cs.ConsensusConfig = field(default_factory=cs.ConsensusConfig)
 
@@ -142,7 +144,8 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
         return MatchResult(descriptor_scale=scale)
     R_b, t_b = R[best], t[best]
     if time.thread_time() < deadline:
-        n_refine = ccfg.refine_with_prior if prior is not None else cfg.refine_hypotheses
+        n_refine = ccfg.refine_with_prior if prior is not None else \
+            max(2, min(cfg.refine_hypotheses, cfg.refine_pair_budget // max(P.size, 1)))
         top = cs._distinct_best(R, t, coarse, ccfg, n_refine)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
@@ -283,7 +286,10 @@ def assign(A: Observations, B: Observations, P: np.ndarray, R: np.ndarray, t: np
     cost = dist / cfg.assign_gate_sigma + cfg.assign_prob_weight * (1 - P)
     if D is not None and cfg.assign_desc_weight > 0:
         cost = cost + cfg.assign_desc_weight * D
-    allowed = (dist < cfg.assign_gate_sigma) & (P >= cfg.assign_min_prob)
+    ok_score = P >= cfg.assign_min_prob
+    if D is not None and cfg.assign_alike_desc > 0:
+        ok_score |= D < cfg.assign_alike_desc
+    allowed = (dist < cfg.assign_gate_sigma) & ok_score
     if score_a is not None and score_b is not None:
         allowed &= np.minimum(score_a[:, None], score_b[None, :]) >= cfg.consensus.assign_min_score
     if veto is not None:
