@@ -30,7 +30,7 @@ ALIGNERS: dict[str, str] = {
     "o3d-ransac": "mmatch.ego.align.baselines:O3DRansacAligner",
     "gicp": "mmatch.ego.align.baselines:GICPAligner",
 }
-DEFAULT_MATCHER = "rmnet"
+DEFAULT_MATCHER = "consensus"
 DEFAULT_ALIGNER = "constrained"
 
 

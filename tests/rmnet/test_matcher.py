@@ -8,7 +8,7 @@ import pytest
 from mmatch.ego.base import MatchContext
 from mmatch.ego.match import rmnet as rm
 from mmatch.ego.match.synthetic import dense_pair
-from mmatch.ego.registry import DEFAULT_MATCHER, get_matcher
+from mmatch.ego.registry import get_matcher
 from mmatch.metrics import is_success, pair_counts, rre_deg, rte_m
 
 from .conftest import make_frame
@@ -27,8 +27,7 @@ def test_views_with_zero_or_one_vehicle_give_no_pairs(matcher):
             assert len(res.pairs) == 0 and res.T_hint is None
 
 
-def test_registered_and_default():
-    assert DEFAULT_MATCHER == "rmnet"
+def test_registered():
     for name in ("rmnet", "rmnet-only", "geometry", "descriptor"):
         assert get_matcher(name).name == name
 
