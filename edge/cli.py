@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "replay": "mmatch.edge.commands.replay",
     "record": "mmatch.edge.commands.record",
     "fit-confidence": "mmatch.edge.commands.fit_confidence",
+    "fit-separation": "mmatch.edge.commands.fit_separation",
     "config": "mmatch.edge.commands.config",
     "router": "mmatch.edge.commands.router",
     "export": "mmatch.edge.commands.export",

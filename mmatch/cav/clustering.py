@@ -48,4 +48,50 @@ def main_clusters(xy: np.ndarray, residual: np.ndarray, moving: np.ndarray, vehi
     best[order[first]] = True
     keep = np.zeros(k, bool)
     keep[ok] = best[lab]
+    if cfg.range_window_m > 0:
+        keep &= _in_range_window(xy, vehicle, keep, cfg.range_window_m)
+    if cfg.wheel_band_mps > 0:
+        keep |= _wheel_returns(xy, residual, vehicle, keep, cfg)
     return keep
+
+
+def _in_range_window(xy: np.ndarray, vehicle: np.ndarray, keep: np.ndarray, window_m: float) -> np.ndarray:
+    """Which kept points (K,) lie in their vehicle's densest range window of window_m metres.
+
+    A radar measures range far better than azimuth (centimetres against a degree or two), and
+    one vehicle's returns span at most its body along the line of sight: returns of a vehicle
+    behind it or of the roadside at other ranges fall outside. Ties: the window with the
+    nearest returns.
+    """
+    out = np.ones(len(xy), bool)
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    for v in np.unique(vehicle[keep]):
+        idx = np.flatnonzero(keep & (vehicle == v))
+        if len(idx) < 3:
+            continue
+        rs = np.sort(r[idx])
+        counts = np.searchsorted(rs, rs + window_m, "right") - np.arange(len(rs))
+        start = rs[int(np.argmax(counts))]
+        out[idx] = (r[idx] >= start - 1e-9) & (r[idx] <= start + window_m)
+    return out
+
+
+def _wheel_returns(xy: np.ndarray, residual: np.ndarray, vehicle: np.ndarray, keep: np.ndarray,
+                   cfg: ClusteringConfig) -> np.ndarray:
+    """Points left out of their vehicle's main cluster that are its wheels: within eps_m of the
+    cluster in position, with a residual between 0 and twice the cluster's median (a wheel's
+    surface moves at 0 ... 2 x the body speed), give or take wheel_band_mps."""
+    out = np.zeros(len(xy), bool)
+    rest = np.flatnonzero(~keep)
+    if len(rest) == 0:
+        return out
+    for v in np.unique(vehicle[rest]):
+        core = np.flatnonzero(keep & (vehicle == v))
+        if len(core) == 0:
+            continue
+        med = float(np.median(residual[core]))
+        lo, hi = min(0.0, 2 * med) - cfg.wheel_band_mps, max(0.0, 2 * med) + cfg.wheel_band_mps
+        cand = rest[vehicle[rest] == v]
+        near = np.min(np.linalg.norm(xy[cand, None] - xy[None, core], axis=2), axis=1) <= cfg.eps_m
+        out[cand[near & (residual[cand] >= lo) & (residual[cand] <= hi)]] = True
+    return out

@@ -39,7 +39,9 @@ from mmatch.cav.accuracy import sigma_azimuth, stationary_doppler_sigma
 from mmatch.cav.clustering import main_clusters
 from mmatch.cav.config import CavConfig
 from mmatch.cav.egomotion import EgoMotion, fit_egomotion
-from mmatch.cav.frustum import centres_from_boxes, grow, project, separate
+from mmatch.cav.frustum import Separation, centres_from_boxes, grow, project, separate
+from mmatch.cav.membership import assign, box_features, candidates
+from mmatch.cav.membership import load_model as load_membership
 from mmatch.cav.plausibility import duplicates, see_through
 from mmatch.errors import MMatchError
 from mmatch.shared import SharedFrame
@@ -148,13 +150,31 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     vb = boxes[vbox]
     proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
     sig_az = sigma_azimuth(points, cfg.radar)
-    if cfg.separation.doppler_assign and ego.ok:
+    # the learned membership reads Doppler against the stationary world: without an ego-motion
+    # estimate the fixed frustum tests below decide
+    model = load_membership(cfg.separation.membership_model) if cfg.separation.learned and ego.ok else None
+    if model is not None and proj is not None:
+        cands = candidates(points, vb, camera, proj, ego.residual, moving, ego.velocity if ego.ok else None,
+                           cfg.radar)
+        learned_owner, prob = assign(cands, len(points), model)
+        if model.box is not None and len(vb):
+            real = model.box.probability(box_features(cands, prob, learned_owner, moving, vb, camera, proj)) \
+                >= model.box.threshold
+            if not real.all():                                # false detections are not shared
+                renum = np.where(real, np.cumsum(real) - 1, -1)
+                learned_owner = np.where(learned_owner >= 0, renum[np.maximum(learned_owner, 0)], -1).astype(np.int32)
+                vbox, vb = vbox[real], vb[real]
+        mine = learned_owner >= 0
+        sep = Separation(owner=learned_owner, claimed=np.bincount(learned_owner[mine], minlength=len(vb)),
+                         claimed_moving=np.bincount(learned_owner[mine & moving], minlength=len(vb)),
+                         active=np.ones(len(vb), bool))
+    elif cfg.separation.doppler_assign and ego.ok:
         sig_d = stationary_doppler_sigma(points, ego.velocity, cfg.radar)
         sep = separate(points, moving, vb, camera, cfg.separation, proj, ego.residual, sig_az, sig_d)
     else:
         sep = separate(points, moving, vb, camera, cfg.separation, proj, sigma_az=sig_az)
     owner = sep.owner                                         # vehicle index or -1
-    if proj is not None:
+    if proj is not None and model is None:
         owner = grow(points, ego.residual, moving, owner, vb, camera, proj, cfg.separation)
         seen_through = see_through(proj, vb, sep.claimed, cfg.plausibility)
         if seen_through.any():                                # no vehicle where the box says: drop it
