@@ -71,14 +71,10 @@ def _views(scene: Scene, cfg: EvalConfig):
     return own, other, times
 
 
-def evaluate_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> dict:
-    """Run one frame pair; returns status, errors, pair counts, payload bytes and stage timings (ms).
-
-    Also the estimate itself, for pictures and reports: "T_ego_cav" (4x4 nested list, or None)
-    and "box_pairs" (the predicted pairs as [ego box, cav box] indices of the scene file).
-    """
+def prepare_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> tuple:
+    """Both views of a frame pair through the CAV-side processing and the CAV's through the wire
+    codec: (own SharedFrame, received SharedFrame, payload bytes, stage timings ms)."""
     from mmatch.codec import decode, encode
-    from mmatch.ego.base import MatchContext
 
     own, other, stages = _views(scene, cfg)
     t0 = time.perf_counter()
@@ -86,9 +82,28 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> dict:
     t1 = time.perf_counter()
     received = decode(payload)
     t2 = time.perf_counter()
+    return own, received, payload, dict(stages, encode=(t1 - t0) * 1e3, decode=(t2 - t1) * 1e3)
+
+
+def evaluate_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> dict:
+    """Run one frame pair; returns status, errors, pair counts, payload bytes and stage timings (ms).
+
+    Also the estimate itself, for pictures and reports: "T_ego_cav" (4x4 nested list, or None)
+    and "box_pairs" (the predicted pairs as [ego box, cav box] indices of the scene file).
+    """
+    return evaluate_with(scene, cfg)[0]
+
+
+def evaluate_with(scene: Scene, cfg: EvalConfig, fuser=None, prepared: tuple | None = None) -> tuple[dict, object]:
+    """`evaluate_scene` with a given Fuser (default: one per config, no tracking) and, when the
+    caller has it already, `prepare_scene`'s output; returns (per-scene result, FusionResult)."""
+    from mmatch.ego.base import MatchContext
+
+    own, received, payload, stages = prepared if prepared is not None else prepare_scene(scene, cfg)
     scale = 1.0 if cfg.descriptor_scale is None else cfg.descriptor_scale
-    result = _fuser(cfg).fuse(own, received, MatchContext(gt_box_pairs=scene.gt_pairs, descriptor_scale=scale))
-    stages = dict(stages, encode=(t1 - t0) * 1e3, decode=(t2 - t1) * 1e3, **result.timings)
+    result = (fuser or _fuser(cfg)).fuse(own, received,
+                                         MatchContext(gt_box_pairs=scene.gt_pairs, descriptor_scale=scale))
+    stages = dict(stages, **result.timings)
     box_pairs = np.column_stack([own.vehicle_box_index[result.pairs[:, 0]],
                                  received.vehicle_box_index[result.pairs[:, 1]]]) if len(result.pairs) \
         else np.zeros((0, 2), np.int32)
@@ -102,7 +117,7 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> dict:
     if result.T_ego_cav is not None:
         rre, rte = rre_deg(scene.gt_T_ego_cav, result.T_ego_cav), rte_m(scene.gt_T_ego_cav, result.T_ego_cav)
         out.update(rre_deg=rre, rte_m=rte, success=is_success(rre, rte), T_ego_cav=result.T_ego_cav.tolist())
-    return out
+    return out, result
 
 
 def _finite_or_none(x: float) -> float | None:

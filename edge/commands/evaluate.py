@@ -26,6 +26,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
                    help="factor on appearance-descriptor distances; auto: measured on the folder "
                         "without labels; 1 (default): as the files have them")
+    p.add_argument("--sequences", action="store_true",
+                   help="the files are sequences (meta.sequence / meta.frame): run each through one tracking "
+                        "fuser in frame order, as the vehicle service does, beside the per-frame mode "
+                        "(JSON: docs/formats.md)")
+    p.add_argument("--track-max-age", type=_nonneg, default=2.0, metavar="S",
+                   help="with --sequences: the tracking fuser's track age limit, s (the service's "
+                        "ego.track_max_age_s)")
     p.add_argument("--confidence-threshold", type=_probability, default=None, metavar="P",
                    help="estimates less sure than P (0-1) are 'no estimate'; default: the fitted model's "
                         "threshold; 0 emits every estimate")
@@ -38,6 +45,16 @@ def _probability(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number in 0-1, got {text!r}") from None
     if not 0.0 <= v <= 1.0:
         raise argparse.ArgumentTypeError(f"expected a number in 0-1, got {text!r}")
+    return v
+
+
+def _nonneg(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not 0.0 <= v < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
     return v
 
 
@@ -68,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(why)
     cfg = EvalConfig(matcher=args.matcher, aligner=args.aligner, cav=args.cav,
                      descriptor_scale=args.descriptor_scale, confidence_threshold=args.confidence_threshold)
+    if args.sequences:
+        return _run_sequences(args, cfg)
     rep, results = evaluate_dir(args.folder, cfg, args.jobs, Progress("eval"))
     for r in results:
         if "rejected" in r:
@@ -76,9 +95,34 @@ def run(args: argparse.Namespace) -> int:
         raise ParseError(f"{args.folder}: every scene file ({rep['rejected']}) was rejected")
     print(format_table(rep))
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(rep, indent=2))
-        out.with_suffix(".scenes.json").write_text(json.dumps(results, indent=1))
-        print(f"wrote {out}")
+        _write(args.json, rep, ".scenes.json", results)
+    return 0
+
+
+def _write(path: str, rep: dict, suffix: str, rows) -> None:
+    """The report as JSON at `path` and the per-scene rows beside it (`path` with `suffix`)."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(rep, indent=2))
+    out.with_suffix(suffix).write_text(json.dumps(rows, indent=1))
+    print(f"wrote {out}")
+
+
+def _run_sequences(args: argparse.Namespace, cfg) -> int:
+    from mmatch.edge.commands.progress import Progress
+    from mmatch.errors import ParseError
+    from mmatch.sequence_eval import SequenceEvalConfig, evaluate_sequences_dir, format_sequence_table
+
+    if args.descriptor_scale is None:
+        raise ParseError("--descriptor-scale auto: not with --sequences (the service has no folder to measure)")
+    scfg = SequenceEvalConfig(eval=cfg, track_max_age_s=args.track_max_age)
+    rep, results = evaluate_sequences_dir(args.folder, scfg, args.jobs, Progress("eval"))
+    rejected = {r["file"]: r["rejected"] for rows in results.values() for r in rows if "rejected" in r}
+    for text in rejected.values():
+        print(f"rejected: {text}", file=sys.stderr)
+    if rep["frames"] == 0:
+        raise ParseError(f"{args.folder}: no frame of a sequence could be evaluated ({rep['rejected']} rejected)")
+    print(format_sequence_table(rep))
+    if args.json:
+        _write(args.json, rep, ".frames.json", results)
     return 0
