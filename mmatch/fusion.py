@@ -13,6 +13,8 @@ from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
 from mmatch.ego.track import TrackConfig, Tracker
+from mmatch.ego.track.filter import Candidate, pose_of, within_success
+from mmatch.ego.track.predict import Prediction
 from mmatch.shared import SharedFrame
 
 SOURCE_OWN, SOURCE_OTHER, SOURCE_BOTH = 0, 1, 2
@@ -23,8 +25,7 @@ class FusionConfig:
     """Which matcher and aligner run (by name); track: carry T_ego_cav across frames (off for
     independent scene files, on in the vehicle service); descriptor_calibration: keep a running
     descriptor scale for frames whose context gives none (off: 1, see EvalConfig); confidence:
-    how sure an estimate must be to be fused (a frame agreeing with the track takes the
-    track's fading confidence when higher than its own)."""
+    how sure an estimate must be to be fused (with tracking: the pose filter's confidence)."""
 
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
@@ -70,7 +71,12 @@ class FusionResult:
 
 
 class Fuser:
-    """Holds the chosen matcher and aligner; call `fuse` per frame."""
+    """Holds the chosen matcher and aligner; call `fuse` per frame.
+
+    With tracking (config.track.max_age_s > 0) each CAV's transform is filtered over time
+    (ego/track/): the prediction seeds the matcher, every candidate the arbiter weighed updates
+    the filter, and the filter's best hypothesis is what is published, with the filter's
+    covariance and confidence. Without tracking each frame stands alone."""
 
     def __init__(self, config: FusionConfig = FusionConfig()) -> None:
         self.config = config
@@ -86,14 +92,19 @@ class Fuser:
         own_objs = _objects(far_side_centres(own), SOURCE_OWN)
         if other is None:
             return FusionResult("single", "no CAV frame", objects=own_objs)
-        predicted = self.tracker.predict(own, other)
-        quick = predicted is not None and self.tracker.tracking_only(other)
+        pred = self.tracker.predict(own, other)
+        quick = pred.prior_T is not None and self.tracker.tracking_only(pred)
+        no_vehicles = own.num_vehicles == 0 or other.num_vehicles == 0
+        # a full search does not see the track, so its candidates are evidence of their own;
+        # a frame with nothing to match refines the prediction on the backgrounds
+        predicted = pred.prior_T if quick or no_vehicles else None
         t0 = time.perf_counter()
-        if own.num_vehicles == 0 or other.num_vehicles == 0:
+        if no_vehicles:
             if predicted is None:
-                return FusionResult("no-estimate", "no vehicles in "
-                                    + ("the own frame" if own.num_vehicles == 0 else "the CAV frame"),
-                                    objects=own_objs)
+                reason = "no vehicles in " + ("the own frame" if own.num_vehicles == 0 else "the CAV frame")
+                if pred.track is not None:          # the track goes on without this frame's evidence
+                    return self._tracked(own, other, pred, [], MatchResult(), {}, False, reason)
+                return FusionResult("no-estimate", reason, objects=own_objs)
             match = MatchResult()
         else:
             ctx = context or MatchContext()
@@ -115,22 +126,52 @@ class Fuser:
         t2 = time.perf_counter()
         timings = {"matching": (t1 - t0) * 1e3, "alignment": (t2 - t1) * 1e3}
         if aligned.T is None:
+            if self.tracker.enabled:
+                return self._tracked(own, other, pred, [], match, timings, predicted is None, aligned.reason)
             return FusionResult("no-estimate", aligned.reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings)
         T, a, cands = self._arbitrate(own, other, match, aligned)
         timings["confidence"] = (time.perf_counter() - t2) * 1e3
-        confidence = a.confidence
-        if self.tracker.agrees(T, predicted):          # the track's evidence carries over, fading
-            confidence = float(np.fmax(confidence, self.tracker.confidence(own, other)))
-        sure = dict(confidence=confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
+        if self.tracker.enabled:
+            return self._tracked(own, other, pred, cands, match, timings, predicted is None, a.reason, (T, a))
+        sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
                     candidates=cands)
-        if confidence < self._threshold:
+        if a.confidence < self._threshold:
             return FusionResult("no-estimate", a.reason, pairs=np.zeros((0, 2), np.int32), objects=own_objs,
                                 timings=timings, refused_T=T, **sure)
-        self.tracker.update(own, other, T, len(match.pairs), predicted, full_search=not quick,
-                            own_confidence=a.confidence)
-        return FusionResult("fused", "tracked" if tracked else "", T, match.pairs,
-                            merge_objects(own, other, T, match.pairs), timings, **sure)
+        return FusionResult("fused", "", T, match.pairs, merge_objects(own, other, T, match.pairs), timings, **sure)
+
+    def _tracked(self, own: SharedFrame, other: SharedFrame, pred: Prediction, cands: list, match: MatchResult,
+                 timings: dict, full_search: bool, reason: str, chosen: tuple | None = None) -> FusionResult:
+        """The pose filter's answer for this frame: every candidate the arbiter weighed is a
+        measurement (ego/track/filter.py); the best hypothesis is published when its confidence
+        reaches the threshold. Pairs are the matcher's when its choice falls in that hypothesis,
+        else the vehicles the hypothesis lays on each other."""
+        t0 = time.perf_counter()
+        candidates = [Candidate(pose_of(Tc), ac.covariance, float(np.nan_to_num(ac.confidence)))
+                      for Tc, ac in cands]
+        hyp, hit = self.tracker.commit(own, other, pred, candidates, full_search)
+        timings = dict(timings, track=(time.perf_counter() - t0) * 1e3)
+        own_objs = _objects(far_side_centres(own), SOURCE_OWN)
+        if hyp is None:
+            return FusionResult("no-estimate", reason or "no track", objects=own_objs, timings=timings)
+        T = hyp.T
+        T[2, 3] = other.radar_height - own.radar_height
+        cov = hyp.covariance(self.tracker.cfg.filter)
+        # a hypothesis confirmed by this frame is as sure as its belief (built from calibrated
+        # per-frame confidences); one carried by prediction alone loses what its spread lost
+        confidence = float(hyp.belief * (1.0 if hit else within_success(cov)))
+        pairs = np.asarray(match.pairs, np.int32).reshape(-1, 2)
+        if chosen is None or not self.tracker.agrees(hyp.T, chosen[0]):
+            pairs = pairs_under(own, other, T)
+        a = chosen[1] if chosen is not None else None
+        sure = dict(confidence=confidence, covariance=cov, ambiguity=a.ambiguity if a is not None else float("nan"),
+                    evidence=dict(a.features) if a is not None else {}, candidates=cands)
+        if confidence < self._threshold:
+            return FusionResult("no-estimate", reason or "track not sure", objects=own_objs, timings=timings,
+                                refused_T=T, **sure)
+        return FusionResult("fused", "" if hit else "tracked", T, pairs, merge_objects(own, other, T, pairs),
+                            timings, **sure)
 
     def _arbitrate(self, own: SharedFrame, other: SharedFrame, match: MatchResult, aligned: AlignResult):
         """The aligner's candidates rated by the confidence model; the most probable one wins.
@@ -163,6 +204,23 @@ def fuse(own: SharedFrame, other: SharedFrame | None, config: FusionConfig | Non
 def _objects(xy: np.ndarray, source: int) -> np.ndarray:
     n = len(xy)
     return np.column_stack([xy, np.full(n, source), np.arange(n)]).astype(np.float32).reshape(-1, 4)
+
+
+def pairs_under(own: SharedFrame, other: SharedFrame, T: np.ndarray, gate_m: float = 2.5) -> np.ndarray:
+    """(P, 2) one-to-one pairs of vehicles that T (4x4) lays within gate_m of each other (nearest first)."""
+    a = far_side_centres(own)
+    b = far_side_centres(other) @ T[:2, :2].T + T[:2, 3]
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 2), np.int32)
+    d = np.linalg.norm(a[:, None] - b[None], axis=2)
+    out = []
+    for flat in np.argsort(d, axis=None):
+        i, j = divmod(int(flat), d.shape[1])
+        if d[i, j] > gate_m:
+            break
+        if all(i != p and j != q for p, q in out):
+            out.append((i, j))
+    return np.array(out, np.int32).reshape(-1, 2)
 
 
 def merge_objects(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndarray) -> np.ndarray:

@@ -6,6 +6,7 @@ import numpy as np
 
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.track import TrackConfig, Tracker
+from mmatch.ego.track.filter import Candidate, pose_of
 from mmatch.fusion import Fuser, FusionConfig
 from mmatch.metrics import rre_deg, rte_m
 from mmatch.shared import SharedFrame
@@ -66,32 +67,45 @@ class World:
         return _frame(who, t, v, cars, bg)
 
 
+def _commit(tr: Tracker, own: SharedFrame, oth: SharedFrame, T: np.ndarray, p: float = 0.9):
+    pred = tr.predict(own, oth)
+    cov = np.diag([0.3, 0.3, np.radians(1.0)]) ** 2
+    return tr.commit(own, oth, pred, [Candidate(pose_of(T), cov, p)], full_search=True)
+
+
 def test_prediction_follows_both_radars_motion():
     w = World()
     tr = Tracker(TrackConfig(max_age_s=2.0))
     own0, oth0 = w.frame("ego", 2.02, True), w.frame("cav", 2.0, True)
-    assert tr.update(own0, oth0, w.truth(2.02, 2.0), n_pairs=3, predicted=None)
+    hyp, hit = _commit(tr, own0, oth0, w.truth(2.02, 2.0))
+    assert hyp is not None and hit and abs(hyp.belief - 0.9) < 0.01     # one frame: its own confidence
     own1, oth1 = w.frame("ego", 2.52, True), w.frame("cav", 2.50, True)
-    pred = tr.predict(own1, oth1)
+    pred = tr.predict(own1, oth1).prior_T
     truth = w.truth(2.52, 2.50)
     assert rte_m(truth, pred) < 1e-6 and rre_deg(truth, pred) < 1e-6
     # stale tracks are dropped
-    assert tr.predict(w.frame("ego", 5.0, True), w.frame("cav", 5.0, True)) is None
+    assert tr.predict(w.frame("ego", 5.0, True), w.frame("cav", 5.0, True)).prior_T is None
+    assert tr.track("cav") is None
 
 
-def test_only_trusted_estimates_replace_the_track():
+def test_a_far_estimate_starts_a_rival_and_a_near_one_refines_the_track():
     w = World()
     tr = Tracker(TrackConfig(max_age_s=2.0))
-    own, oth = w.frame("ego", 1.0, True), w.frame("cav", 1.0, True)
-    wrong = w.truth(1.0, 1.0) @ se2_to_matrix(_rot(0), np.array([6.0, 0.0]))
-    assert not tr.update(own, oth, wrong, n_pairs=1, predicted=None)       # one pair, nothing to agree with
-    assert tr.predict(own, oth) is None
-    assert tr.update(own, oth, w.truth(1.0, 1.0), n_pairs=2, predicted=None)
-    pred = tr.predict(own, oth)
-    assert not tr.update(own, oth, wrong, n_pairs=1, predicted=pred)      # far from the prediction
-    near = w.truth(1.0, 1.0) @ se2_to_matrix(_rot(1.0), np.array([0.5, 0.0]))
-    assert tr.update(own, oth, near, n_pairs=0, predicted=pred)           # close to it
-    assert not Tracker(TrackConfig(max_age_s=0.0)).update(own, oth, w.truth(1.0, 1.0), 5, None)
+    for k in range(4):
+        t = 1.0 + 0.05 * k
+        _commit(tr, w.frame("ego", t, True), w.frame("cav", t, True), w.truth(t, t), p=0.8)
+    established = tr.track("cav").best().belief
+    t = 1.2
+    wrong = w.truth(t, t) @ se2_to_matrix(_rot(0), np.array([0.0, 12.0]))
+    best, _ = _commit(tr, w.frame("ego", t, True), w.frame("cav", t, True), wrong, p=0.8)
+    hyps = tr.track("cav").hypotheses
+    assert len(hyps) == 2                                        # the slid estimate lives beside it
+    assert rte_m(w.truth(t, t), best.T) < 0.5 and best.belief < established
+    near = w.truth(t + 0.05, t + 0.05) @ se2_to_matrix(_rot(0.5), np.array([0.3, 0.0]))
+    best, hit = _commit(tr, w.frame("ego", t + 0.05, True), w.frame("cav", t + 0.05, True), near, p=0.8)
+    assert hit and rte_m(w.truth(t + 0.05, t + 0.05), best.T) < 0.3
+    assert not Tracker(TrackConfig(max_age_s=0.0)).commit(
+        w.frame("ego", 1.0, True), w.frame("cav", 1.0, True), None, [], True)[0]
 
 
 def test_a_frame_without_vehicles_is_fused_from_the_track():
@@ -101,7 +115,7 @@ def test_a_frame_without_vehicles_is_fused_from_the_track():
     assert first.status == "fused" and len(first.pairs) == 3
     assert rte_m(w.truth(5.02, 5.0), first.T_ego_cav) < 1.0
     later = fuser.fuse(w.frame("ego", 5.52, True), w.frame("cav", 5.5, False))   # the CAV sees no car
-    assert later.status == "fused" and later.reason == "tracked" and len(later.pairs) == 0
+    assert later.status == "fused" and len(later.pairs) == 0
     truth = w.truth(5.52, 5.5)
     assert rte_m(truth, later.T_ego_cav) < 1.0 and rre_deg(truth, later.T_ego_cav) < 2.0
     # without tracking the same frame has nothing to go on
@@ -109,17 +123,18 @@ def test_a_frame_without_vehicles_is_fused_from_the_track():
     assert plain.status == "no-estimate" and "no vehicles" in plain.reason
 
 
-def test_tracking_frames_refine_the_prediction_and_a_full_search_comes_back_regularly():
+def test_full_searches_come_back_regularly_while_tracking():
     w = World()
     fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, full_search_every=3)))
     quick = []
-    for k in range(7):
+    for k in range(9):
         t = 3.0 + 0.05 * k
         own, oth = w.frame("ego", t + 0.02, True), w.frame("cav", t, True)
-        quick.append(fuser.tracker.tracking_only(oth))
+        quick.append(fuser.tracker.tracking_only(fuser.tracker.predict(own, oth)))
         res = fuser.fuse(own, oth)
         truth = w.truth(t + 0.02, t)
         assert res.status == "fused" and rte_m(truth, res.T_ego_cav) < 1.0 and rre_deg(truth, res.T_ego_cav) < 2.0
         assert len(res.pairs) == 3
-    # full search, two tracking frames, full search, ...
-    assert quick == [False, True, True, False, True, True, False]
+    assert not quick[0] and any(quick)                           # the first frame searches
+    runs = "".join("q" if q else "f" for q in quick)
+    assert "qqq" not in runs                                     # never more than 2 tracking frames in a row

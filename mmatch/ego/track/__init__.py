@@ -1,4 +1,4 @@
-"""Over time: carry T_ego_cav from frame to frame."""
+"""Over time: a multi-hypothesis filter on T_ego_cav per CAV (filter.py) and its keeper (predict.py)."""
 
 from mmatch.ego.track.predict import TrackConfig, Tracker
 

@@ -1,133 +1,140 @@
-"""Carry T_ego_cav from frame to frame: predict it with both radars' own motion.
+"""Carry T_ego_cav from frame to frame: one multi-hypothesis pose filter per CAV (ego/track/filter.py).
 
-Between two frames each radar moves by its Doppler-fitted velocity times the time since
-its previous frame (straight-line motion; yaw rates are not observed and roads are mostly
-straight over a few frames). The predicted transform seeds the matcher and, when a frame
-offers nothing to match (no vehicle in one view), still gives the aligner a start that the
-backgrounds and the heading prior refine. A new estimate replaces the track only when it
-is trusted: two or more matched vehicles, or close to the prediction.
+`Tracker.predict` moves a CAV's track to the new frame pair's capture stamps (both radars'
+Doppler velocities and the filtered yaw rates); its best hypothesis seeds the matcher when
+believed enough. Between full (global) searches the matcher only refines that prediction; a
+full search comes back every `full_search_every` frames, when the track is lost, and right
+after a tracking frame whose result did not fall in the track. `Tracker.commit` takes every
+candidate transform the frame's arbiter weighed and returns the hypothesis to publish.
 
 Frames: T maps CAV-radar coordinates into Ego-radar coordinates (DESIGN.md).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from mmatch.ego.track.filter import (Candidate, FilterConfig, Hypothesis, PoseTrack, new_hypothesis, pose_of,
+                                     predict as predict_hypothesis, step, velocity_of)
 from mmatch.shared import SharedFrame
 
 
 @dataclass(frozen=True)
 class TrackConfig:
-    max_age_s: float = 2.0          # a track older than this (own clock) is dropped; 0: no tracking
-    agree_m: float = 2.0            # an estimate this close to the prediction is trusted...
+    """max_age_s: a track not updated for this long (either radar's clock) is dropped; 0: no
+    tracking (every frame on its own). full_search_every: frames between full searches while
+    tracking (and only while the best hypothesis is believed at least quick_belief); agree_m / agree_deg: two transforms this close agree; prior_belief: a best hypothesis at least this believed seeds the matcher;
+    filter: the pose filter's noise, gates and belief (ego/track/filter.py)."""
+
+    max_age_s: float = 2.0
+    full_search_every: int = 10
+    quick_belief: float = 0.9
+    quick_fit: float = 0.3
+    agree_m: float = 2.0
     agree_deg: float = 5.0
-    min_pairs: int = 2              # ...as is one with this many matched vehicles
-    full_search_every: int = 10     # frames between full (global) searches while tracking
-    confidence_half_life_s: float = 3.0   # a track's carried confidence halves every this long
-                                          # without a frame sure of itself on its own
+    prior_belief: float = 0.3
+    filter: FilterConfig = field(default_factory=FilterConfig)
 
 
 @dataclass
-class _Track:
-    T: np.ndarray
-    own_stamp: float
-    other_stamp: float
-    since_full: int = 0
-    confidence: float = float("nan")
-    confident_stamp: float = float("nan")
+class Prediction:
+    """A CAV's track moved to a new frame pair (not yet committed): the track (or None when
+    there was none), the elapsed times (s) and the prior for the matcher (4x4 or None)."""
 
-
-def _shift(v: np.ndarray, dt: float) -> np.ndarray:
-    """4x4 taking a radar's new coordinates to its old ones after it moved v (2,) m/s for dt s."""
-    M = np.eye(4)
-    M[:2, 3] = np.asarray(v, float) * dt
-    return M
-
-
-def _velocity(frame: SharedFrame) -> np.ndarray:
-    v = np.asarray(frame.ego_velocity, float).reshape(2)
-    return v if np.all(np.isfinite(v)) else np.zeros(2)
+    track: PoseTrack | None
+    dt_own: float
+    dt_other: float
+    prior_T: np.ndarray | None
 
 
 class Tracker:
-    """Last trusted transform per CAV (by sender id), predicted forward on request."""
+    """One PoseTrack per CAV (by sender id)."""
 
     def __init__(self, config: TrackConfig = TrackConfig()) -> None:
         self.cfg = config
-        self._tracks: dict[str, _Track] = {}
+        self._tracks: dict[str, PoseTrack] = {}
 
     @property
     def enabled(self) -> bool:
         return self.cfg.max_age_s > 0
 
-    def predict(self, own: SharedFrame, other: SharedFrame) -> np.ndarray | None:
-        """T_ego_cav at the two frames' stamps from the sender's track, or None (no or stale track)."""
+    def track(self, sender: str) -> PoseTrack | None:
+        """The committed track of a CAV (for inspection)."""
+        return self._tracks.get(sender)
+
+    def predict(self, own: SharedFrame, other: SharedFrame) -> Prediction:
+        """The sender's track at the two frames' stamps (a copy; `commit` keeps it)."""
         tr = self._tracks.get(other.sender) if self.enabled else None
         if tr is None:
-            return None
-        dt_own, dt_other = own.stamp - tr.own_stamp, other.stamp - tr.other_stamp
-        if abs(dt_own) > self.cfg.max_age_s or abs(dt_other) > self.cfg.max_age_s:
+            return Prediction(None, 0.0, 0.0, None)
+        dt_own, dt_other = float(own.stamp) - tr.own_stamp, float(other.stamp) - tr.other_stamp
+        if not (abs(dt_own) <= self.cfg.max_age_s and abs(dt_other) <= self.cfg.max_age_s):
             del self._tracks[other.sender]
-            return None
-        # a fixed point: p_old = p_new + v dt in each radar's frame
-        own_new_from_old = np.linalg.inv(_shift(_velocity(own), dt_own))
-        return own_new_from_old @ tr.T @ _shift(_velocity(other), dt_other)
+            return Prediction(None, 0.0, 0.0, None)
+        v_own = (tr.v_own + velocity_of(own)) / 2
+        v_other = (tr.v_other + velocity_of(other)) / 2
+        hyps = [predict_hypothesis(h, v_own, v_other, dt_own, dt_other, self.cfg.filter) for h in tr.hypotheses]
+        moved = PoseTrack(hyps, float(own.stamp), float(other.stamp), velocity_of(own), velocity_of(other),
+                          tr.since_full, tr.frames)
+        best = moved.best()
+        prior = best.T if best is not None and best.belief >= self.cfg.prior_belief else None
+        return Prediction(moved, dt_own, dt_other, prior)
 
-    def confidence(self, own: SharedFrame, other: SharedFrame) -> float:
-        """What the sender's track vouches for at the own frame's stamp: the confidence of the last
-        estimate that was sure on its own, halving every confidence_half_life_s since (NaN: no track)."""
-        tr = self._tracks.get(other.sender)
-        if tr is None or not np.isfinite(tr.confidence):
-            return float("nan")
-        age = max(float(own.stamp) - tr.confident_stamp, 0.0)
-        return float(tr.confidence * 0.5 ** (age / max(self.cfg.confidence_half_life_s, 1e-6)))
-
-    def agrees(self, T: np.ndarray, predicted: np.ndarray | None) -> bool:
-        """Whether an estimate lies within agree_m / agree_deg of the track's prediction."""
-        if predicted is None:
+    def agrees(self, T: np.ndarray, other_T: np.ndarray | None) -> bool:
+        """Whether two transforms (4x4) lie within agree_m / agree_deg of each other."""
+        if other_T is None:
             return False
-        d = np.linalg.norm(T[:2, 3] - predicted[:2, 3])
-        yaw = np.degrees(abs((np.arctan2(T[1, 0], T[0, 0]) - np.arctan2(predicted[1, 0], predicted[0, 0])
+        d = np.linalg.norm(T[:2, 3] - other_T[:2, 3])
+        yaw = np.degrees(abs((np.arctan2(T[1, 0], T[0, 0]) - np.arctan2(other_T[1, 0], other_T[0, 0])
                               + np.pi) % (2 * np.pi) - np.pi))
         return bool(d <= self.cfg.agree_m and yaw <= self.cfg.agree_deg)
 
-    def tracking_only(self, other: SharedFrame) -> bool:
-        """Whether the next frame of this sender may skip the global search."""
-        tr = self._tracks.get(other.sender)
-        return tr is not None and 0 < tr.since_full < self.cfg.full_search_every
+    def tracking_only(self, pred: Prediction) -> bool:
+        """Whether this frame may skip the global search and only refine the prediction: a
+        believed track, a full search less than full_search_every frames ago, and the last
+        tracking frame fell in the track."""
+        tr = pred.track
+        best = tr.best() if tr is not None else None
+        return (best is not None and best.belief >= self.cfg.quick_belief
+                and 0 < tr.since_full < self.cfg.full_search_every)
 
-    def update(self, own: SharedFrame, other: SharedFrame, T: np.ndarray | None, n_pairs: int,
-               predicted: np.ndarray | None, full_search: bool = True,
-               own_confidence: float = float("nan")) -> bool:
-        """Keep T as the sender's track when trusted; returns whether it was kept.
+    def commit(self, own: SharedFrame, other: SharedFrame, pred: Prediction, candidates: list[Candidate],
+               full_search: bool) -> tuple[Hypothesis | None, bool]:
+        """Update the predicted track with the frame's candidates and keep it.
 
-        full_search: T came from a global search (else from refining the prediction alone);
-        an untrusted result forces the next frame to search globally. own_confidence: how sure
-        this frame's estimate is on its own; the track keeps the last one at least as sure as
-        what it vouches for (see `confidence`).
+        Returns the best hypothesis (None: no track) and whether it took a measurement of this
+        frame. full_search: the candidates come from a search that did not know the track
+        (evidence for and against its hypotheses); else they refine its prediction. A
+        tracking frame whose candidates missed the best hypothesis makes the next frame
+        search globally, as does one whose best fit is less sure than quick_fit.
         """
-        if not self.enabled or T is None:
-            old = self._tracks.get(other.sender)
-            if old is not None:
-                old.since_full = 0
-            return False
-        trusted = n_pairs >= self.cfg.min_pairs or self.agrees(T, predicted)
-        old = self._tracks.get(other.sender)
-        if trusted:
-            since = 1 if full_search or old is None else old.since_full + 1
-            carried = self.confidence(own, other) if old is not None else float("nan")
-            if np.isfinite(own_confidence) and not own_confidence < carried:
-                conf, stamp = float(own_confidence), float(own.stamp)
-            else:
-                conf, stamp = (old.confidence, old.confident_stamp) if old is not None else (float("nan"), float("nan"))
-            self._tracks[other.sender] = _Track(np.asarray(T, float).copy(), float(own.stamp), float(other.stamp),
-                                                since, conf, stamp)
-        elif old is not None:
-            old.since_full = 0
-        return trusted
+        if not self.enabled:
+            return None, False
+        track = pred.track
+        if track is None:
+            track = PoseTrack([], float(own.stamp), float(other.stamp), velocity_of(own), velocity_of(other))
+        hit = step(track, candidates, max(pred.dt_own, 0.0), self.cfg.filter, independent=full_search)
+        track.frames += 1
+        if full_search:
+            track.since_full = 1
+        elif hit and max((c.p for c in candidates), default=0.0) >= self.cfg.quick_fit:
+            track.since_full += 1
+        else:
+            track.since_full = 0
+        if not track.hypotheses:
+            self._tracks.pop(other.sender, None)
+            return None, False
+        self._tracks[other.sender] = track
+        return track.best(), hit
+
+    def force(self, own: SharedFrame, other: SharedFrame, T: np.ndarray, belief: float = 0.99) -> None:
+        """Replace a CAV's track by a single hypothesis at T (4x4) believed `belief` (tests and
+        fault injection: a wrong track that the filter must leave)."""
+        h = new_hypothesis(pose_of(T), np.diag([0.1, 0.1, np.radians(0.5) ** 2]), belief, self.cfg.filter)
+        self._tracks[other.sender] = PoseTrack([h], float(own.stamp), float(other.stamp), velocity_of(own),
+                                               velocity_of(other), since_full=1)
 
     def reset(self, sender: str | None = None) -> None:
         """Forget one sender's track, or all."""
