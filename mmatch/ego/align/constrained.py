@@ -39,6 +39,7 @@ class ConstrainedConfig:
     distinct_m: float = 1.0
     distinct_deg: float = 2.0
     yaw_offsets_deg: tuple[float, ...] = (-4.0, 0.0, 4.0)
+    hint_yaw_only: bool = True          # with a transform, single-pair starts under its heading yaw only
 
 
 class ConstrainedAligner:
@@ -62,8 +63,12 @@ class ConstrainedAligner:
                 and len(pairs) <= cfg.max_single_pair_starts:
             # each pair under each heading yaw (and a few degrees either side): starts that one
             # badly placed pair cannot spoil
+            use = yaws
+            if match.T_hint is not None and cfg.hint_yaw_only:   # the heading yaw nearest the hint's
+                hint = np.arctan2(match.T_hint[1, 0], match.T_hint[0, 0])
+                use = yaws[[int(np.argmin(np.abs((yaws - hint + np.pi) % (2 * np.pi) - np.pi)))]]
             for i, j in pairs:
-                for y in yaws:
+                for y in use:
                     for dy in np.radians(cfg.yaw_offsets_deg):
                         R = np.array([[np.cos(y + dy), -np.sin(y + dy)], [np.sin(y + dy), np.cos(y + dy)]])
                         starts.append((R, A.centres[i] - R @ B.centres[j]))
