@@ -14,7 +14,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="model file to write (default: the packaged mmatch/cav/membership_model.json)")
     p.add_argument("--seed", type=int, default=0, help="seed of the network's initialisation")
     p.add_argument("--threshold", type=float, default=0.5, help="probability above which a point joins a box")
-    p.add_argument("--box-threshold", type=float, default=0.3,
+    p.add_argument("--box-threshold", type=float, default=0.15,
                    help="probability of being a vehicle below which a box is not shared")
 
 
