@@ -25,12 +25,15 @@ class FusionConfig:
     """Which matcher and aligner run (by name); track: carry T_ego_cav across frames (off for
     independent scene files, on in the vehicle service); descriptor_calibration: keep a running
     descriptor scale for frames whose context gives none (off: 1, see EvalConfig); confidence:
-    how sure an estimate must be to be fused (with tracking: the pose filter's confidence)."""
+    how sure an estimate must be to be fused (with tracking: the pose filter's confidence);
+    extra_hypotheses: the matcher's best distinct other hypotheses the arbiter weighs beside
+    the aligner's results, each with the pairs it implies."""
 
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
     track: TrackConfig = TrackConfig(max_age_s=0.0)
     descriptor_calibration: bool = False
+    extra_hypotheses: int = 3
     confidence: ConfidenceConfig = ConfidenceConfig()
 
 
@@ -130,7 +133,8 @@ class Fuser:
                 return self._tracked(own, other, pred, [], match, timings, predicted is None, aligned.reason)
             return FusionResult("no-estimate", aligned.reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings)
-        T, a, cands = self._arbitrate(own, other, match, aligned)
+        T, a, cands, pairs = self._arbitrate(own, other, match, aligned)
+        match = replace(match, pairs=pairs)
         timings["confidence"] = (time.perf_counter() - t2) * 1e3
         if self.tracker.enabled:
             return self._tracked(own, other, pred, cands, match, timings, predicted is None, a.reason, (T, a))
@@ -174,9 +178,11 @@ class Fuser:
                             timings, **sure)
 
     def _arbitrate(self, own: SharedFrame, other: SharedFrame, match: MatchResult, aligned: AlignResult):
-        """The aligner's candidates rated by the confidence model; the most probable one wins.
+        """The aligner's candidates, and the matcher's best distinct other hypotheses each with
+        the pairs it implies, rated by the confidence model; the most probable one wins.
 
-        Returns T (4x4), its Assessment, and every candidate as (T, Assessment) for evaluation.
+        Returns T (4x4), its Assessment, every candidate as (T, Assessment) for evaluation, and
+        the winner's pairs.
         """
         scale = match.descriptor_scale
 
@@ -188,12 +194,18 @@ class Fuser:
             R, t = aligned.candidates
         else:
             R, t = aligned.T[None, :2, :2], aligned.T[None, :2, 3]
+        dz = aligned.T[2, 3]
         rated = assess_many(ctx, R, t, match.pairs, match)
+        Ts = [se2_to_matrix(R[h], t[h], dz) for h in range(len(R))]
+        pairs = [np.asarray(match.pairs, np.int32).reshape(-1, 2)] * len(Ts)
+        for Rh, th in _other_hypotheses(match, R, t, self.config.extra_hypotheses):
+            ph = self._scorer.pairs_under(own, other, Rh, th, scale)
+            rated += assess_many(ctx, Rh[None], th[None], ph, match)
+            Ts.append(se2_to_matrix(Rh, th, dz))
+            pairs.append(ph)
         p = np.array([x.confidence for x in rated])
         k = int(np.nanargmax(p)) if np.isfinite(p).any() else 0
-        dz = aligned.T[2, 3]
-        Ts = [se2_to_matrix(R[h], t[h], dz) for h in range(len(R))]
-        return Ts[k], rated[k], list(zip(Ts, rated))
+        return Ts[k], rated[k], list(zip(Ts, rated)), pairs[k]
 
 
 def fuse(own: SharedFrame, other: SharedFrame | None, config: FusionConfig | None = None) -> FusionResult:
@@ -204,6 +216,28 @@ def fuse(own: SharedFrame, other: SharedFrame | None, config: FusionConfig | Non
 def _objects(xy: np.ndarray, source: int) -> np.ndarray:
     n = len(xy)
     return np.column_stack([xy, np.full(n, source), np.arange(n)]).astype(np.float32).reshape(-1, 4)
+
+
+def _other_hypotheses(match: MatchResult, R: np.ndarray, t: np.ndarray, n: int,
+                      distinct_m: float = 1.5, distinct_deg: float = 3.0):
+    """The matcher's n best-scored hypotheses not within distinct_m / distinct_deg of a candidate
+    (R (K, 2, 2), t (K, 2)) or of each other: (R (2, 2), t (2,)) each."""
+    hyp = match.hypotheses
+    if hyp is None or n <= 0 or len(hyp.R) == 0:
+        return []
+    taken_R, taken_t, out = list(R), list(t), []
+    for h in np.argsort(-np.asarray(hyp.score), kind="stable"):
+        if len(out) >= n:
+            break
+        yaw = np.arctan2(hyp.R[h, 1, 0], hyp.R[h, 0, 0])
+        near = any(np.linalg.norm(hyp.t[h] - tt) < distinct_m and abs((np.arctan2(rr[1, 0], rr[0, 0]) - yaw + np.pi)
+                   % (2 * np.pi) - np.pi) < np.radians(distinct_deg) for rr, tt in zip(taken_R, taken_t))
+        if near:
+            continue
+        out.append((hyp.R[h], hyp.t[h]))
+        taken_R.append(hyp.R[h])
+        taken_t.append(hyp.t[h])
+    return out
 
 
 def pairs_under(own: SharedFrame, other: SharedFrame, T: np.ndarray, gate_m: float = 2.5) -> np.ndarray:

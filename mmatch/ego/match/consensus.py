@@ -128,6 +128,17 @@ class ConsensusMatcher:
         return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T, descriptor_scale=scale,
                            hypotheses=Hypotheses(Rr, tr, total))
 
+    def pairs_under(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
+                    descriptor_scale: float = 1.0) -> np.ndarray:
+        """(P, 2) the one-to-one pairs this matcher assigns under one transform R (2, 2), t (2,)."""
+        cfg = self.cfg
+        A, B = observe(own, cfg.observation), observe(other, cfg.observation)
+        if len(A.centres) == 0 or len(B.centres) == 0:
+            return np.zeros((0, 2), np.int32)
+        D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
+        pairs, _ = _assign(A, B, D, R, t, cfg, None, _scores(own, cfg), _scores(other, cfg))
+        return pairs
+
     def score(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
               descriptor_scale: float = 1.0) -> np.ndarray:
         """(H,) this matcher's evidence for hypotheses R (H, 2, 2), t (H, 2) of the other -> own
