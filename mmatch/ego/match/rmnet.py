@@ -38,7 +38,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import MatchContext, MatchResult, heading_yaws, road_speed_consistency
+from mmatch.ego.base import Hypotheses, MatchContext, MatchResult, heading_yaws, road_speed_consistency
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.match import consensus as cs
 from mmatch.ego.match.graph import build_graph
@@ -143,6 +143,7 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
     if coarse[best] < cfg.min_support:
         return MatchResult(descriptor_scale=scale)
     R_b, t_b = R[best], t[best]
+    hyps = None
     if time.thread_time() < deadline:
         n_refine = ccfg.refine_with_prior if prior is not None else \
             max(2, min(cfg.refine_hypotheses, cfg.refine_pair_budget // max(P.size, 1)))
@@ -161,6 +162,7 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
                 total = total + ccfg.prior_weight * cs._prior_agreement(Rr, tr, prior, ccfg)
             k = int(np.argmax(total))
             R_b, t_b = Rr[k], tr[k]
+            hyps = Hypotheses(Rr, tr, total)
         else:
             R_b, t_b = R_ref[0], t_ref[0]                 # the best coarse hypothesis, refined
     veto = None
@@ -168,7 +170,7 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
         veto = speed[int(np.argmin(cs._yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
     pairs, score = assign(A, B, P, R_b, t_b, cfg, veto, cs._scores(own, ccfg), cs._scores(other, ccfg), D)
     T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
-    return MatchResult(pairs=pairs, scores=score, T_hint=T, descriptor_scale=scale)
+    return MatchResult(pairs=pairs, scores=score, T_hint=T, descriptor_scale=scale, hypotheses=hyps)
 
 
 def prune(P: np.ndarray, k: int, min_prob: float) -> np.ndarray:
