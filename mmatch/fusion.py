@@ -53,7 +53,8 @@ class FusionResult:
     ambiguity: the best distinct alternative's score relative to the chosen one (0: none,
     1: as good), NaN when unknown. An estimate whose confidence is below the configured
     threshold is refused: status "no-estimate", T_ego_cav None, the reason what weighs most
-    against it, our own objects only; its confidence, covariance and evidence stay.
+    against it, our own objects only; its pairs (the matcher's best guess of the vehicles both
+    see), confidence, covariance and evidence stay.
     evidence: the features behind the confidence (see ego/confidence.py); refused_T: the
     estimate that was refused (for evaluation only; never publish it); candidates: every
     transform the arbiter weighed with its Assessment (for evaluation and fitting).
@@ -141,7 +142,9 @@ class Fuser:
         sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
                     candidates=cands)
         if a.confidence < self._threshold:
-            return FusionResult("no-estimate", a.reason, pairs=np.zeros((0, 2), np.int32), objects=own_objs,
+            # the vehicles both probably see stay reported (with the estimate's confidence); the
+            # objects are not merged without a transform
+            return FusionResult("no-estimate", a.reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings, refused_T=T, **sure)
         return FusionResult("fused", "", T, match.pairs, merge_objects(own, other, T, match.pairs), timings, **sure)
 
