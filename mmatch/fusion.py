@@ -188,11 +188,7 @@ class Fuser:
         the winner's pairs.
         """
         scale = match.descriptor_scale
-
-        def scorer(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-            return self._scorer.score(own, other, R, t, scale)
-
-        ctx = PairContext(own, other, scorer, self.config.confidence)
+        ctx = PairContext(own, other, self._scorer.scorer(own, other, scale), self.config.confidence)
         if aligned.candidates is not None and len(aligned.candidates[0]):
             R, t = aligned.candidates
         else:
@@ -202,7 +198,7 @@ class Fuser:
         Ts = [se2_to_matrix(R[h], t[h], dz) for h in range(len(R))]
         pairs = [np.asarray(match.pairs, np.int32).reshape(-1, 2)] * len(Ts)
         for Rh, th in _other_hypotheses(match, R, t, self.config.extra_hypotheses):
-            ph = self._scorer.pairs_under(own, other, Rh, th, scale)
+            ph = self._scorer.pairs_under(own, other, Rh, th, scale, (ctx.A, ctx.B))
             rated += assess_many(ctx, Rh[None], th[None], ph, match)
             Ts.append(se2_to_matrix(Rh, th, dz))
             pairs.append(ph)

@@ -341,12 +341,11 @@ def _margins(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray,
         return np.ones(H), np.zeros(H), np.zeros(H)
     pivot = np.broadcast_to(ctx.A.centres[pairs[:, 0]].mean(axis=0), (H, 2)) if len(pairs) else t
     Rv, tv = _variants(R, t, pivot, ctx.main_axis, ctx.cfg)
-    pool_R, pool_t = [R, Rv], [t, tv]
-    if hyp is not None and len(hyp.R):
-        pool_R.append(hyp.R)
-        pool_t.append(hyp.t)
-    PR, Pt = np.concatenate(pool_R), np.concatenate(pool_t)
+    PR, Pt = np.concatenate([R, Rv]), np.concatenate([t, tv])
     sc = ctx.scorer(PR, Pt)
+    if hyp is not None and len(hyp.R):            # the matcher scored its own hypotheses already
+        PR, Pt = np.concatenate([PR, hyp.R]), np.concatenate([Pt, hyp.t])
+        sc = np.concatenate([sc, np.asarray(hyp.score, float)])
     own_s = sc[:H]
     far = (np.linalg.norm(Pt[None] - t[:, None], axis=2) > ctx.cfg.distinct_m) \
         | (np.abs(_wrap(_yaw(PR)[None] - _yaw(R)[:, None])) > np.radians(ctx.cfg.distinct_deg))   # (H, K)

@@ -129,10 +129,12 @@ class ConsensusMatcher:
                            hypotheses=Hypotheses(Rr, tr, total))
 
     def pairs_under(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
-                    descriptor_scale: float = 1.0) -> np.ndarray:
-        """(P, 2) the one-to-one pairs this matcher assigns under one transform R (2, 2), t (2,)."""
+                    descriptor_scale: float = 1.0, observed: tuple | None = None) -> np.ndarray:
+        """(P, 2) the one-to-one pairs this matcher assigns under one transform R (2, 2), t (2,).
+
+        observed: the two frames' Observations when already at hand (same observation model)."""
         cfg = self.cfg
-        A, B = observe(own, cfg.observation), observe(other, cfg.observation)
+        A, B = observed if observed is not None else (observe(own, cfg.observation), observe(other, cfg.observation))
         if len(A.centres) == 0 or len(B.centres) == 0:
             return np.zeros((0, 2), np.int32)
         D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
@@ -143,19 +145,26 @@ class ConsensusMatcher:
               descriptor_scale: float = 1.0) -> np.ndarray:
         """(H,) this matcher's evidence for hypotheses R (H, 2, 2), t (H, 2) of the other -> own
         transform: vehicle consensus plus weighted background agreement (no track prior)."""
+        return self.scorer(own, other, descriptor_scale)(R, t)
+
+    def scorer(self, own: SharedFrame, other: SharedFrame, descriptor_scale: float = 1.0):
+        """`score` for one frame pair with its per-frame work done once: a callable (R, t) -> (H,)."""
         cfg = self.cfg
         A, B = observe(own, cfg.observation), observe(other, cfg.observation)
-        if len(R) == 0:
-            return np.zeros(0)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
-        bg = cfg.background_weight * _background_scores(bg_own, bg_other, R, t, cfg, tree)
-        if len(A.centres) == 0 or len(B.centres) == 0:
-            return bg
-        D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
-        alike_of = _likeness(D, heading_yaws(own, other), road_speed_consistency(own, other), cfg,
-                             _confidence(own, cfg), _confidence(other, cfg))
-        return _vehicle_scores(A, B, alike_of(R), R, t, cfg) + bg
+        alike_of = None
+        if len(A.centres) and len(B.centres):
+            D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
+            alike_of = _likeness(D, heading_yaws(own, other), road_speed_consistency(own, other), cfg,
+                                 _confidence(own, cfg), _confidence(other, cfg))
+
+        def of(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+            if len(R) == 0:
+                return np.zeros(0)
+            bg = cfg.background_weight * _background_scores(bg_own, bg_other, R, t, cfg, tree)
+            return bg if alike_of is None else _vehicle_scores(A, B, alike_of(R), R, t, cfg) + bg
+        return of
 
 
 def _prior_agreement(R: np.ndarray, t: np.ndarray, prior: np.ndarray, cfg: ConsensusConfig) -> np.ndarray:
