@@ -36,11 +36,13 @@ def _get(module: str, name: str) -> Callable:
                           "the vehicle service needs the CAV processing, codec and fusion modules") from exc
 
 
-def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0) -> Pipeline:
+def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0,
+                     confidence_threshold: float | None = None) -> Pipeline:
     """The product pipeline; `need_fuse=False` lets a CAV run without the fusion module.
 
     track_max_age_s > 0: one Fuser for the whole run that carries each CAV's transform
-    across frames (mmatch/ego/track.py) for up to that long.
+    across frames (mmatch/ego/track/) for up to that long. confidence_threshold: estimates
+    less sure are "no estimate" (None or negative: the fitted model's threshold).
 
     $MMATCH_PIPELINE="module:attr" names another `Pipeline` (for tests and experiments).
     """
@@ -55,7 +57,10 @@ def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0) ->
     if need_fuse:
         fuser, fusion_config = _get("mmatch.fusion", "Fuser"), _get("mmatch.fusion", "FusionConfig")
         track_config = _get("mmatch.ego.track", "TrackConfig")
-        fuse = fuser(fusion_config(track=track_config(max_age_s=track_max_age_s))).fuse
+        confidence_config = _get("mmatch.ego.confidence", "ConfidenceConfig")
+        thr = None if confidence_threshold is None or confidence_threshold < 0 else float(confidence_threshold)
+        fuse = fuser(fusion_config(track=track_config(max_age_s=track_max_age_s),
+                                   confidence=confidence_config(threshold=thr))).fuse
     return Pipeline(process_view=_get("mmatch.cav.process", "process_view"),
                     encode=_get("mmatch.codec", "encode"), decode=_get("mmatch.codec", "decode"),
                     fuse=fuse)

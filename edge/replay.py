@@ -282,7 +282,8 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
             from mmatch.edge.auth import identity
             signer = identity(cfg, need_trust=False).signer
         node = None
-        pipeline = default_pipeline(need_fuse=cfg.is_ego, track_max_age_s=cfg.ego.track_max_age_s) if process else None
+        pipeline = default_pipeline(need_fuse=cfg.is_ego, track_max_age_s=cfg.ego.track_max_age_s,
+                                    confidence_threshold=cfg.ego.confidence_threshold) if process else None
 
         def fresh_node() -> Node:
             n = Node(cfg, pipeline, camera, height, publish=transport.put if transport else None,

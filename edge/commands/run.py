@@ -66,7 +66,8 @@ def run_service(cfg, *, duration: float | None = None, process: bool = True) -> 
     from mmatch.edge.sources import open_camera, open_radar
     from mmatch.edge.transport import Transport
 
-    pipeline = default_pipeline(need_fuse=cfg.is_ego, track_max_age_s=cfg.ego.track_max_age_s) if process else None
+    pipeline = default_pipeline(need_fuse=cfg.is_ego, track_max_age_s=cfg.ego.track_max_age_s,
+                                    confidence_threshold=cfg.ego.confidence_threshold) if process else None
     ident = make_identity(cfg) if process else None
     notifier = Notifier()
     with contextlib.ExitStack() as stack:
