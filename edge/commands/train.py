@@ -18,6 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder (figures, history, config)")
     p.add_argument("--export", default=None, help="ONNX file to write (default OUT/rmnet.onnx); card beside it")
     p.add_argument("--scenes", type=int, default=4000, help="simulated scene pairs (easy and hard in turn)")
+    p.add_argument("--physics", default="wide",
+                   help="simulator physics: nominal, wide (the family we train on) or a TOML file of ranges")
     p.add_argument("--dense-scenes", type=int, default=0,
                    help="extra hard scene pairs in dense traffic (--dense-vehicles other vehicles)")
     p.add_argument("--dense-vehicles", default="60-150", help="LO-HI other vehicles of a dense scene")

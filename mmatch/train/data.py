@@ -58,12 +58,12 @@ def sample_from_frames(own: SharedFrame, other: SharedFrame, gt_box_pairs: np.nd
                   target_matrix(own, other, gt_box_pairs), name)
 
 
-def _scene_sample(args: tuple[int, int, str]) -> Sample | None:
+def _scene_sample(args: tuple) -> Sample | None:
     from mmatch.cav.process import process_view
     from mmatch.sim.scenario import make_scene
 
-    seed, index, mode = args
-    scene = make_scene(seed, index, mode)
+    seed, index, mode, physics = args
+    scene = make_scene(seed, index, mode, physics)
     e, c = scene.ego, scene.cav
     own, _ = process_view(e.points, e.boxes, e.features, e.camera, e.radar_height, e.stamp, sender="ego")
     other, _ = process_view(c.points, c.boxes, c.features, c.camera, c.radar_height, c.stamp, sender="cav")
@@ -109,9 +109,9 @@ def _run(fn, tasks, jobs, progress) -> list[Sample]:
 
 
 def simulate_samples(seed: int, n: int, modes: tuple[str, ...] = ("easy", "hard"), jobs: int = 1,
-                     progress: Callable[[int, int], None] | None = None) -> list[Sample]:
+                     progress: Callable[[int, int], None] | None = None, physics: str = "wide") -> list[Sample]:
     """Samples of `n` simulated scenes of data set `seed`, the modes taken in turn (scene k: modes[k % len])."""
-    tasks = [(seed, k, modes[k % len(modes)]) for k in range(n)]
+    tasks = [(seed, k, modes[k % len(modes)], physics) for k in range(n)]
     return _run(_scene_sample, tasks, jobs, progress)
 
 

@@ -12,6 +12,7 @@ class TrainRequest:
     out: str
     export: str | None = None
     scenes: int = 4000
+    physics: str = "wide"
     dense_scenes: int = 0
     dense_vehicles: str = "60-150"
     synthetic_scenes: int = 0

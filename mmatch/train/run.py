@@ -45,11 +45,12 @@ class Bar:
 def _data(req: TrainRequest) -> list[Sample]:
     if req.samples and Path(req.samples).is_file():
         return load_samples(req.samples)
-    samples = simulate_samples(req.seed, req.scenes, ("easy", "hard"), req.jobs, Bar("simulate"))
+    samples = simulate_samples(req.seed, req.scenes, ("easy", "hard"), req.jobs, Bar("simulate"), req.physics)
     if req.dense_scenes:
         from mmatch.sim.world import traffic_override
         with traffic_override(parse_range(req.dense_vehicles, "dense_vehicles")):
-            samples += simulate_samples(req.seed + 1, req.dense_scenes, ("hard",), req.jobs, Bar("simulate dense"))
+            samples += simulate_samples(req.seed + 1, req.dense_scenes, ("hard",), req.jobs, Bar("simulate dense"),
+                                        req.physics)
     if req.synthetic_scenes:
         samples += synthetic_samples(req.seed + 2, req.synthetic_scenes, parse_range(req.synthetic_vehicles,
                                      "synthetic_vehicles"), req.jobs, Bar("synthetic dense"))
@@ -99,6 +100,7 @@ def train(req: TrainRequest) -> dict:
         "model": export.name, "bytes": export.stat().st_size,
         "parameters": int(sum(p.numel() for p in net.parameters())), "steps": req.steps,
         "data": {"simulation_seed": req.seed, "scenes": req.scenes, "modes": "easy and hard in turn",
+                 "physics": req.physics,
                  "dense_scenes": req.dense_scenes, "dense_vehicles": req.dense_vehicles,
                  "dense_seed": req.seed + 1 if req.dense_scenes else None,
                  "synthetic_scenes": req.synthetic_scenes, "synthetic_vehicles": req.synthetic_vehicles,
@@ -128,7 +130,7 @@ mmatch/train/model.py). Written by `mmatch train`; inputs and shapes in mmatch/e
 - Size: {card['parameters']} parameters, {card['bytes']} bytes, {card['steps']} message-passing steps
   (32-d nodes, 16-d edges), ONNX opset 18, one file.
 - Data: {d['frame_pairs']} frame pairs with 2+ vehicles a view: simulated scenes ({d['scenes']}, {d['modes']},
-  simulation seed {d['simulation_seed']}) plus {d['dense_scenes']} dense-traffic hard scenes ({d['dense_vehicles']} other
+  physics {d.get('physics', 'nominal')}, simulation seed {d['simulation_seed']}) plus {d['dense_scenes']} dense-traffic hard scenes ({d['dense_vehicles']} other
   vehicles, seed {d['dense_seed']}), both through {d['cav_side']}, plus {d['synthetic_scenes']} synthetic dense
   frame pairs ({d['synthetic_vehicles']} vehicles a view, mmatch/ego/match/synthetic.py, seed {d['synthetic_seed']});
   each pair also seen from the other vehicle. Split by scene: {d['train']} training, {d['validation']} validation.

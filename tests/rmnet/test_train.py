@@ -26,6 +26,7 @@ def test_smoke_training_and_export(tmp_path, capsys):
     assert (out / "figures" / "epoch_000.png").stat().st_size > 1000
     card = (tmp_path / "model" / "rmnet.md").read_text()
     assert "simulation seed 4242" in card and "2 dense-traffic" in card and "3 synthetic dense" in card
+    assert "physics wide" in card
     meta = json.loads(card.split("```json")[1].split("```")[0])
     assert meta["agreement_max_abs"] < 1e-4 and meta["data"]["scenes"] == 24
 
