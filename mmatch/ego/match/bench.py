@@ -3,7 +3,7 @@
 - inference: ONNX Runtime time of the shipped model on graphs of 6, 20 and 40 vehicles a
   side (one thread), median of repeated calls;
 - dense traffic: synthetic frame pairs of about 40 vehicles a view (synthetic.py) through
-  the Ego path (codec, matching, alignment) with the default matcher: latency median / p90,
+  the Ego path (codec, matching, alignment, confidence) with `rmnet`: latency median / p90,
   success and pair F1.
 """
 
@@ -64,11 +64,10 @@ def dense(n: int, per_view: int = 40, seed: int = 41, matcher: str | None = None
     """Ego-path latency, success and pair F1 on n synthetic dense frame pairs (see the module docstring)."""
     from mmatch.codec import decode, encode
     from mmatch.ego.base import MatchContext
-    from mmatch.ego.registry import DEFAULT_MATCHER
     from mmatch.fusion import FusionConfig, Fuser
     from mmatch.metrics import is_success, pair_counts, rre_deg, rte_m
 
-    fuser = Fuser(FusionConfig(matcher=matcher or DEFAULT_MATCHER))
+    fuser = Fuser(FusionConfig(matcher=matcher or "rmnet"))
     pairs = [dense_pair(seed * 1000 + i, per_view) for i in range(n + 1)]
     totals, cpu, ok, per = [], [], [], []
     tp = pred = gt_n = 0
