@@ -141,10 +141,12 @@ class Fuser:
             return self._tracked(own, other, pred, cands, match, timings, predicted is None, a.reason, (T, a))
         sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
                     candidates=cands)
-        if a.confidence < self._threshold:
-            # the vehicles both probably see stay reported (with the estimate's confidence); the
+        if a.confidence < self._threshold or a.features.get("margin", 1.0) < self.config.confidence.min_margin:
+            # not sure enough, or the matcher's own evidence prefers a distinct alternative (two
+            # judges disagree: ambiguous); the vehicles both probably see stay reported (with the estimate's confidence); the
             # objects are not merged without a transform
-            return FusionResult("no-estimate", a.reason, pairs=match.pairs, objects=own_objs,
+            reason = a.reason if a.confidence < self._threshold else "ambiguous"
+            return FusionResult("no-estimate", reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings, refused_T=T, **sure)
         return FusionResult("fused", "", T, match.pairs, merge_objects(own, other, T, match.pairs), timings, **sure)
 

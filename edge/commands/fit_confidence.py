@@ -17,24 +17,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-gross", type=float, default=0.015,
                    help="gross-error rate among the emitted estimates the threshold must keep")
     p.add_argument("--min-coverage", type=float, default=0.8, help="share of scenes to keep when possible")
+    p.add_argument("--matchers", default="consensus,rmnet",
+                   help="comma-separated matchers whose candidates the model learns from (one model serves all)")
     p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
 
 
 def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
-    from mmatch.ego.confidence import MODEL_PATH
+    from mmatch.ego.confidence import MODEL_PATH, load_model
     from mmatch.ego.confidence_fit import fit_model
     from mmatch.errors import ParseError
     from mmatch.evaluate import EvalConfig, evaluate_dir
 
+    from mmatch.ego.registry import MATCHERS
+
+    matchers = [m for m in args.matchers.split(",") if m]
+    for m in matchers:
+        if m not in MATCHERS:
+            raise ParseError(f"--matchers: unknown matcher {m!r}; choose from {', '.join(sorted(MATCHERS))}")
+    current = load_model()                      # the model the evaluation runs under (its inflation)
     results = []
     for folder in args.folders:
         if not Path(folder).is_dir() or not any(Path(folder).glob("*.npz")):
             raise ParseError(f"{folder}: not a folder of *.npz scene files")
-        _, res = evaluate_dir(folder, EvalConfig(confidence_threshold=0.0), args.jobs, Progress("fit"))
-        results.extend(res)
+        for m in matchers:
+            _, res = evaluate_dir(folder, EvalConfig(matcher=m, confidence_threshold=0.0), args.jobs,
+                                  Progress(f"fit {m}"))
+            results.extend(res)
     try:
-        model = fit_model(results, args.max_gross, args.min_coverage, meta={"folders": args.folders})
+        model = fit_model(results, args.max_gross, args.min_coverage,
+                          meta={"folders": args.folders, "matchers": matchers},
+                          inflation_used=current.inflation if current is not None else 1.0)
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
     out = Path(args.out) if args.out else MODEL_PATH

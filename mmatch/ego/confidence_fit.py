@@ -67,12 +67,13 @@ def choose_threshold(p: np.ndarray, gross: np.ndarray, n_scenes: int, max_gross:
 
 
 def fit_model(results: list[dict], max_gross: float = 0.015, min_coverage: float = 0.8,
-              C: float = 1.0, meta: dict | None = None) -> ProbabilityModel:
+              C: float = 1.0, meta: dict | None = None, inflation_used: float = 1.0) -> ProbabilityModel:
     """The probability model, inflation and threshold from evaluated scenes (see module doc).
 
     The regression learns from every candidate of every scene (right and wrong ones side by
     side); the threshold and the inflation from the candidate the model would choose in each
-    scene, as the Fuser does.
+    scene, as the Fuser does. inflation_used: the covariance inflation the results were
+    evaluated with (their covariances carry it; the fitted factor is relative to it).
     """
     from sklearn.linear_model import LogisticRegression
 
@@ -97,4 +98,5 @@ def fit_model(results: list[dict], max_gross: float = 0.015, min_coverage: float
     info = dict(meta or {}, candidates=len(X), scenes=n_scenes, chosen=len(chosen_rows),
                 chosen_success=float(y[chosen_rows].mean()), chosen_gross=float(g[chosen_rows].mean()),
                 candidate_success=float(y.mean()), max_gross=max_gross, min_coverage=min_coverage)
-    return ProbabilityModel(FEATURES, mean, scale, model.coef, model.intercept, fit_inflation(chosen), thr, info)
+    return ProbabilityModel(FEATURES, mean, scale, model.coef, model.intercept,
+                            fit_inflation(chosen) * inflation_used, thr, info)
