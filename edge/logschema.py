@@ -60,8 +60,10 @@ SHARED_POINT_FIELDS = (*POINT_FIELDS, "vehicle")
 FLOAT32 = 7  # foxglove.PackedElementField.NumericType.FLOAT32
 
 #: nominal vehicle box (width along x, length along y, height), m: the size of a marker at an
-#: object's centre; headings are not estimated, so the box stays aligned with the radar axes
+#: object's centre, aligned with the radar axes unless the object's track moves at least
+#: MIN_HEADING_MPS (m/s): then it is turned along the track's velocity
 VEHICLE_BOX_M = (1.8, 4.5, 1.5)
+MIN_HEADING_MPS = 1.0
 #: colours (r, g, b, a) of fused objects by source: 0 own, 1 other vehicle, 2 seen by both
 SOURCE_COLOURS = {0: (0.20, 0.45, 1.00, 0.6), 1: (1.00, 0.55, 0.10, 0.6), 2: (0.20, 0.80, 0.30, 0.7)}
 SOURCE_NAMES = {0: "own", 1: "other", 2: "both"}
@@ -432,15 +434,44 @@ def _scene(msg: dict, radar_height: float) -> bytes:
         _meta(e, vehicle=cav["id"], confidence=_finite(cav.get("confidence")),
               pairs=len(cav.get("pairs", [])), reason=cav.get("reason", ""))
     z = _centre_z(radar_height)
+    tracks = {int(t["id"]): t for t in msg.get("tracks", []) if isinstance(t, dict) and "id" in t}
+    seen: set[int] = set()
     for row in msg.get("objects", []):  # x, y, source, index[, track id]: ids per frame until tracked
         x, y, src, index = float(row[0]), float(row[1]), int(row[2]), int(row[3])
         track = int(row[4]) if len(row) > 4 and row[4] >= 0 else None
+        if track is not None and track in seen:       # a second detection of one tracked vehicle
+            track = None
         name = SOURCE_NAMES.get(src, str(src))
         e = _entity(update, stamp, ego, f"{name}/{index}" if track is None else f"track/{track}")
         label = f"{name} {index}" if track is None else f"#{track} ({name})"
         _box(e, x, y, z, SOURCE_COLOURS.get(src, (1.0, 1.0, 1.0, 0.5)), label)
-        _meta(e, source=name, index=index, track=track)
+        t = tracks.get(track) if track is not None else None
+        if t is not None:
+            seen.add(track)
+            _heading(e, x, y, z, float(t["vx"]), float(t["vy"]))
+            _meta(e, source=name, index=index, track=track, vx=round(float(t["vx"]), 3), vy=round(float(t["vy"]), 3))
+        else:
+            _meta(e, source=name, index=index, track=track)
     return update.SerializeToString()
+
+
+def _heading(e: Any, x: float, y: float, z: float, vx: float, vy: float) -> None:
+    """A tracked object's box turned along its ground velocity (m/s, Ego radar frame), with an
+    arrow as long as the way it covers in one second; a vehicle slower than MIN_HEADING_MPS
+    keeps the axis-aligned box (its heading is unknown)."""
+    speed = math.hypot(vx, vy)
+    if speed < MIN_HEADING_MPS:
+        return
+    yaw = math.atan2(vy, vx)                                 # the velocity's direction from +x
+    o = e.cubes[0].pose.orientation
+    o.x, o.y, o.z, o.w = _quat_z(yaw - math.pi / 2)          # the box's length lies along y
+    arrow = e.arrows.add()
+    arrow.pose.position.x, arrow.pose.position.y, arrow.pose.position.z = x, y, z + VEHICLE_BOX_M[2] / 2
+    a = arrow.pose.orientation
+    a.x, a.y, a.z, a.w = _quat_z(yaw)                        # Foxglove arrows point along +x
+    arrow.shaft_length, arrow.shaft_diameter = max(speed - 0.5, 0.1), 0.15
+    arrow.head_length, arrow.head_diameter = 0.5, 0.4
+    arrow.color.r = arrow.color.g = arrow.color.b = arrow.color.a = 1.0
 
 
 def fused_records(msg: dict, radar_height: float) -> list[Record]:

@@ -20,12 +20,15 @@ from mmatch.errors import MMatchError
 class Pipeline:
     """process_view(points, boxes, features, camera, radar_height, stamp, *, sender, seq)
     -> (SharedFrame, {stage: ms}); encode(SharedFrame) -> bytes; decode(bytes) -> SharedFrame
-    (raises DecodeError); fuse(own, other | None) -> FusionResult."""
+    (raises DecodeError); fuse(own, other | None) -> FusionResult; track_objects(own,
+    [(other, FusionResult), ...]) -> ObjectFrame | None, once per Ego frame after fusing every
+    CAV (None: objects are not tracked)."""
 
     process_view: Callable[..., tuple[Any, dict[str, float]]]
     encode: Callable[[Any], bytes]
     decode: Callable[[bytes], Any]
     fuse: Callable[..., Any]
+    track_objects: Callable[..., Any] | None = None
 
 
 def _get(module: str, name: str) -> Callable:
@@ -41,8 +44,9 @@ def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0,
     """The product pipeline; `need_fuse=False` lets a CAV run without the fusion module.
 
     track_max_age_s > 0: one Fuser for the whole run that carries each CAV's transform
-    across frames (mmatch/ego/track/) for up to that long. confidence_threshold: estimates
-    less sure are "no estimate" (None or negative: the fitted model's threshold).
+    across frames (mmatch/ego/track/) for up to that long and tracks the fused objects.
+    confidence_threshold: estimates less sure are "no estimate" (None or negative: the fitted
+    model's threshold).
 
     $MMATCH_PIPELINE="module:attr" names another `Pipeline` (for tests and experiments).
     """
@@ -53,17 +57,19 @@ def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0,
         if not isinstance(pipe, Pipeline):
             raise MMatchError(f"pipeline: $MMATCH_PIPELINE={override!r} is not a Pipeline")
         return pipe
-    fuse = _no_fuse
+    fuse, track_objects = _no_fuse, None
     if need_fuse:
         fuser, fusion_config = _get("mmatch.fusion", "Fuser"), _get("mmatch.fusion", "FusionConfig")
         track_config = _get("mmatch.ego.track", "TrackConfig")
         confidence_config = _get("mmatch.ego.confidence", "ConfidenceConfig")
         thr = None if confidence_threshold is None or confidence_threshold < 0 else float(confidence_threshold)
-        fuse = fuser(fusion_config(track=track_config(max_age_s=track_max_age_s),
-                                   confidence=confidence_config(threshold=thr))).fuse
+        one = fuser(fusion_config(track=track_config(max_age_s=track_max_age_s),
+                                  confidence=confidence_config(threshold=thr)))
+        fuse = one.fuse
+        track_objects = one.track_objects if track_max_age_s > 0 else None
     return Pipeline(process_view=_get("mmatch.cav.process", "process_view"),
                     encode=_get("mmatch.codec", "encode"), decode=_get("mmatch.codec", "decode"),
-                    fuse=fuse)
+                    fuse=fuse, track_objects=track_objects)
 
 
 def _no_fuse(*a: Any, **k: Any) -> Any:

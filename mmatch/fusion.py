@@ -14,6 +14,7 @@ from mmatch.ego.descriptor_scale import RunningDescriptorScale
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
 from mmatch.ego.track import TrackConfig, Tracker
 from mmatch.ego.track.filter import Candidate, pose_of, within_success
+from mmatch.ego.track.objects import ObjectFrame, ObjectTrackConfig, ObjectTracker
 from mmatch.ego.track.predict import Prediction
 from mmatch.shared import SharedFrame
 
@@ -27,7 +28,8 @@ class FusionConfig:
     descriptor scale for frames whose context gives none (off: 1, see EvalConfig); confidence:
     how sure an estimate must be to be fused (with tracking: the pose filter's confidence);
     extra_hypotheses: the matcher's best distinct other hypotheses the arbiter weighs beside
-    the aligner's results, each with the pairs it implies."""
+    the aligner's results, each with the pairs it implies; objects: the fused object tracks
+    (with tracking only, ego/track/objects.py)."""
 
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
@@ -35,6 +37,7 @@ class FusionConfig:
     descriptor_calibration: bool = False
     extra_hypotheses: int = 3
     confidence: ConfidenceConfig = ConfidenceConfig()
+    objects: ObjectTrackConfig = ObjectTrackConfig()
 
 
 @dataclass
@@ -80,13 +83,15 @@ class Fuser:
     With tracking (config.track.max_age_s > 0) each CAV's transform is filtered over time
     (ego/track/): the prediction seeds the matcher, every candidate the arbiter weighed updates
     the filter, and the filter's best hypothesis is what is published, with the filter's
-    covariance and confidence. Without tracking each frame stands alone."""
+    covariance and confidence; `track_objects` then keeps the fused objects' tracks (ids,
+    velocities, covariances). Without tracking each frame stands alone."""
 
     def __init__(self, config: FusionConfig = FusionConfig()) -> None:
         self.config = config
         self.matcher = get_matcher(config.matcher)
         self.aligner = get_aligner(config.aligner)
         self.tracker = Tracker(config.track)
+        self.objects = ObjectTracker(config.objects) if self.tracker.enabled else None
         self.descriptor_scale = RunningDescriptorScale()
         self._scorer = get_matcher("consensus")
         self._threshold = threshold(config.confidence)
@@ -149,6 +154,27 @@ class Fuser:
             return FusionResult("no-estimate", reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings, refused_T=T, **sure)
         return FusionResult("fused", "", T, match.pairs, merge_objects(own, other, T, match.pairs), timings, **sure)
+
+    def track_objects(self, own: SharedFrame, fused: list[tuple[SharedFrame, FusionResult]]) -> ObjectFrame | None:
+        """The object tracks after this Ego frame: `own` and every CAV frame fused with it this
+        frame with its result (status "fused"); None without tracking. Call once per Ego frame,
+        after `fuse` for each CAV (the vehicle service does; so does `mmatch eval --sequences`).
+
+        The Ego's yaw rate is the pose filter's (best hypothesis of the first fused CAV) when that
+        knows it to `objects.own_yaw_rate_sigma` (rad/s), else 0: the relative pose tells the two
+        vehicles' yaw rates apart only loosely, and a wrong one moves far objects sideways."""
+        if self.objects is None:
+            return None
+        views, yaw_rate = [], 0.0
+        for other, res in fused:
+            if res.status != "fused" or res.T_ego_cav is None:
+                continue
+            views.append((other, res.T_ego_cav, res.covariance, res.pairs))
+            tr = self.tracker.track(other.sender)
+            best = tr.best() if tr is not None else None
+            if len(views) == 1 and best is not None and best.P[3, 3] <= self.config.objects.own_yaw_rate_sigma ** 2:
+                yaw_rate = float(best.x[3])
+        return self.objects.step(own, views, yaw_rate)
 
     def _tracked(self, own: SharedFrame, other: SharedFrame, pred: Prediction, cands: list, match: MatchResult,
                  timings: dict, full_search: bool, reason: str, chosen: tuple | None = None) -> FusionResult:

@@ -23,6 +23,7 @@ import numpy as np
 from mmatch.errors import MMatchError, SceneFormatError
 from mmatch.evaluate import EvalConfig, evaluate_with, prepare_scene, report
 from mmatch.metrics import is_gross
+from mmatch.object_eval import objects_report
 
 log = logging.getLogger(__name__)
 
@@ -91,11 +92,14 @@ def evaluate_sequence(files: list[str], cfg: SequenceEvalConfig = SequenceEvalCo
     """One sequence's files in frame order through a tracking and a per-frame Fuser.
 
     Returns {"tracked": [per-frame result], "per_frame": [...]} (the `mmatch eval` per-scene
-    fields plus "sequence", "frame" and "stamp", the Ego's capture time in s). on_frame(scene,
-    mode, FusionResult) is called after each fusion (for object figures and tests).
+    fields plus "sequence", "frame" and "stamp", the Ego's capture time in s; the tracked rows
+    also "objects", the frame's object-track figures of mmatch/object_eval.py). on_frame(scene,
+    mode, FusionResult) is called after each fusion (for tests).
     """
+    from mmatch.object_eval import ObjectScore
     from mmatch.scene_io import load_scene
     fusers = {"tracked": tracking_fuser(cfg), "per_frame": per_frame_fuser(cfg)}
+    score = ObjectScore()
     out: dict[str, list[dict]] = {m: [] for m in MODES}
     for path in files:
         try:
@@ -115,6 +119,10 @@ def evaluate_sequence(files: list[str], cfg: SequenceEvalConfig = SequenceEvalCo
                        "rte_m": None, "success": False}
             else:
                 res, result = evaluate_with(scene, cfg.eval, fusers[mode], prepared)
+                if mode == "tracked":           # the object tracks, as the vehicle service keeps them
+                    own, received = prepared[0], prepared[1]
+                    objects = fusers[mode].track_objects(own, [(received, result)])
+                    res["objects"] = score.add(scene, own, received, result, objects)
                 if on_frame is not None:
                     on_frame(scene, mode, result)
             res.update(file=path, sequence=scene.meta["sequence"], frame=int(scene.meta["frame"]),
@@ -217,6 +225,7 @@ def sequence_report(results: dict[str, list[dict]], cfg: SequenceEvalConfig) -> 
         rep["over_time"] = over_time(results[m])
         modes[m] = rep
     t, p = modes["tracked"], modes["per_frame"]
+    t["objects"] = objects_report([r["objects"] for r in results["tracked"] if "objects" in r])
     return {"sequences": t["over_time"]["sequences"], "frames": t["scenes"], "rejected": t["rejected"],
             "tracked": t, "per_frame": p,
             "gain": {"rte_median": _gain(t["rte_m"]["median"], p["rte_m"]["median"]),
@@ -251,9 +260,17 @@ def format_sequence_table(rep: dict) -> str:
         ("unrecovered runs", t["over_time"]["unrecovered"], p["over_time"]["unrecovered"], "d"),
         ("latency median (ms)", t["latency_ms"]["total"]["median"], p["latency_ms"]["total"]["median"], ".1f"),
     ]
+    o = t.get("objects") or {}
     lines = [f"{rep['sequences']} sequences, {rep['frames']} frames, rejected {rep['rejected']}",
              f"{'':<28}{'tracked':>10}{'per-frame':>11}"]
     lines += [f"{name:<28}{_fmt(a, f):>10}{_fmt(b, f):>11}" for name, a, b, f in rows]
+    if o.get("frames"):
+        v, w = o["velocity_error_mps"], o["two_view_velocity_error_mps"]
+        lines.append(f"object tracks: {o['id_switches']} id switches ({_fmt(o['id_switches_per_100_frames'], '.2f')} "
+                     f"per 100 frames), {_fmt(o['matched_share'], '.3f')} of the detected vehicles matched, "
+                     f"{_fmt(o['false_tracks_per_frame'], '.2f')} unmatched tracks per frame; co-visible velocity "
+                     f"error median {_fmt(v['median'], '.2f')} m/s, p90 {_fmt(v['p90'], '.2f')} (one-frame two-view "
+                     f"solve: median {_fmt(w['median'], '.2f')})")
     g = rep["gain"]
     lines.append(f"tracking lowers the median RTE by {_fmt(g['rte_median'], '.0%')} and the median RRE by "
                  f"{_fmt(g['rre_median'], '.0%')}")

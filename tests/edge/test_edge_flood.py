@@ -170,7 +170,7 @@ def test_an_attacker_without_the_fleet_keys_cannot_stall_or_fool_the_ego(tmp_pat
     assert used and max(used) < ATTACK_SEQ and len(used & genuine_seqs) >= 0.9 * len(used)
     assert checks["accepted"] <= cav_health[-1]["node"]["published_shared"]   # no replay got in
     for _, m in fused:
-        obj = np.asarray(m["objects"], float).reshape(-1, 4)
+        obj = np.asarray([o[:2] for o in m["objects"]], float).reshape(-1, 2)   # x, y, source, index[, track]
         assert not np.any(np.hypot(obj[:, 0] - FAKE_XY[0], obj[:, 1] - FAKE_XY[1]) < 0.5)
     assert sent >= 0.8 * RATE * FLOOD_S
     for reason in ("unknown_key", "bad_signature", "replay"):

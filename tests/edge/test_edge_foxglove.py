@@ -127,7 +127,15 @@ def test_ego_log_is_foxglove_native(sim_logs):
         boxes = [e for e in update.entities if e.cubes]
         assert len(boxes) == len(m["objects"])
         assert [d.type for d in update.deletions] == [1]  # ALL: each update is the whole view
-        for e, (x, y, source, _index) in zip(boxes, m["objects"]):
+        tracks_drawn = set()
+        for e, (x, y, source, index, *track) in zip(boxes, m["objects"]):
+            # tracked (the service's default): the entity is the object's track (once per track)
+            assert len(track) == 1
+            if track[0] >= 0 and int(track[0]) not in tracks_drawn:
+                assert e.id == f"track/{int(track[0])}"
+                tracks_drawn.add(int(track[0]))
+            else:
+                assert e.id == f"{['own', 'other', 'both'][int(source)]}/{int(index)}"
             assert e.frame_id == "ego1/radar"
             assert (e.cubes[0].pose.position.x, e.cubes[0].pose.position.y) == pytest.approx((x, y), abs=1e-6)
             colour = (e.cubes[0].color.r, e.cubes[0].color.g, e.cubes[0].color.b)
@@ -208,7 +216,7 @@ def test_ros2_export_reads_back_with_rosbags(sim_logs, tmp_path, storage):
         cubes = [mk for mk in arr.markers if mk.type == 1 and mk.action == 0]
         assert len(cubes) == len(msg["objects"])
         assert all(mk.header.frame_id == "ego1/radar" for mk in cubes)
-        for mk, (ox, oy, _s, _i) in zip(cubes, msg["objects"]):
+        for mk, (ox, oy, *_) in zip(cubes, msg["objects"]):
             assert (mk.pose.position.x, mk.pose.position.y) == pytest.approx((ox, oy), abs=1e-6)
 
 

@@ -25,6 +25,12 @@ def test_eval_sequences_reports_both_modes_side_by_side(short_sequences, tmp_pat
         assert r["scenes"] == 24
         assert set(r["over_time"]) >= {"time_to_first_estimate_s", "recovery_s", "gross_frame_share"}
         assert 0.0 <= r["over_time"]["gross_frame_share"] <= r["coverage"]
+    # the fused object tracks against the truth: ids and co-visible velocities
+    o = rep["tracked"]["objects"]
+    assert "objects" not in rep["per_frame"] and o["frames"] == 24 and o["objects"] > 24
+    assert o["matched_share"] > 0.8 and o["id_switches_per_100_frames"] <= 10
+    assert o["velocity_error_mps"]["n"] > 10 and o["velocity_error_mps"]["median"] < 1.0
+    assert "id switches" in table
     frames = json.loads(out.with_suffix(".frames.json").read_text())
     # every frame once per mode, in frame order within its sequence
     for mode in ("tracked", "per_frame"):
