@@ -387,19 +387,41 @@ class ObjectTracker:
         live = [tr for tr in self.tracks if tr.hits >= 2 and stamp - tr.last_update <= cfg.publish_coast_s]
         return ObjectFrame(own_ids, other_ids, live, stamp)
 
-    def _cost(self, tr: ObjectTrack, v: _View, factor: float, partner: bool) -> float:
-        """A view's cost to a track: its negative log-likelihood (centre and radial speed), inf
-        outside the gate."""
+    def _costs(self, views: list[_View], cols: list[int], factor: float) -> tuple[np.ndarray, np.ndarray]:
+        """Costs (n, m) of views to the tracks `cols`: the negative log-likelihood of each centre
+        and radial speed under each predicted track (inf outside the gate; in the wider gate only
+        within loose_max_m), a young track costing more; and the squared Mahalanobis distances
+        of the centres (n, m). Vectorised over views and tracks."""
         cfg = self.cfg
-        d2, logdet = _position_nll(tr, v, factor)
-        if not d2 < CHI2_2_999:
-            return float("inf")
-        if factor > 1.0 and np.hypot(*(v.z - _h_position(v) @ tr.x)) > cfg.loose_max_m:
-            return float("inf")
-        ok, k2 = _radial_ok(tr, v, cfg)
-        radial = min(k2, CHI2_2_99) if ok else (CHI2_2_99 if _h_radial(v) is not None else 0.0)
-        return (d2 + logdet + radial + (cfg.young_cost if tr.hits < cfg.confirm_hits else 0.0)
-                - (cfg.pair_bonus if partner else 0.0))
+        x = np.array([self.tracks[b].x for b in cols]).reshape(-1, 4)
+        P = np.array([self.tracks[b].P for b in cols]).reshape(-1, 4, 4)
+        dt = np.array([v.dt for v in views])[:, None, None, None]
+        z = np.array([v.z for v in views]).reshape(-1, 2)
+        Rz = np.array([v.Rz for v in views]).reshape(-1, 2, 2) * factor
+        # the centre's model H = [I, dt I]: H P H^T and H x for every view and track
+        HPH = (P[None, :, :2, :2] + dt * (P[None, :, :2, 2:] + P[None, :, 2:, :2]) + dt ** 2 * P[None, :, 2:, 2:])
+        S = HPH + Rz[:, None]
+        y = z[:, None] - (x[None, :, :2] + dt[..., 0] * x[None, :, 2:])
+        det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
+        d2 = (S[..., 1, 1] * y[..., 0] ** 2 - 2 * S[..., 0, 1] * y[..., 0] * y[..., 1]
+              + S[..., 0, 0] * y[..., 1] ** 2) / np.maximum(det, 1e-12)
+        cost = d2 + np.log(np.maximum(det, 1e-12))
+        ok = d2 < CHI2_2_999
+        if factor > 1.0:
+            ok &= np.hypot(y[..., 0], y[..., 1]) <= cfg.loose_max_m
+        # radial speeds: agreeing ones add their squared innovation, far ones a fixed penalty
+        g = np.array([v.g for v in views])
+        u = np.array([v.u for v in views]).reshape(-1, 2)
+        has = np.isfinite(g) & np.isfinite(u).all(axis=1)
+        uu = np.where(has[:, None], u, 0.0)
+        sp = np.einsum("na,mab,nb->nm", uu, P[:, 2:, 2:], uu)
+        nu = np.where(has, g, 0.0)[:, None] - uu @ x[:, 2:].T
+        near = np.abs(nu) <= cfg.radial_reject_mps + 3.0 * np.sqrt(sp)
+        k2 = np.minimum(nu ** 2 / (sp + cfg.radial_sigma_mps ** 2), CHI2_2_99)
+        cost += np.where(has[:, None], np.where(near, k2, CHI2_2_99), 0.0)
+        hits = np.array([self.tracks[b].hits for b in cols])
+        cost += np.where(hits < cfg.confirm_hits, cfg.young_cost, 0.0)[None]
+        return np.where(ok, cost, np.inf), d2
 
     def _assign(self, views: list[_View], cols: list[int], pair_of: dict[int, int],
                 own_track: dict[int, int]) -> tuple[dict[int, tuple[int, float]], dict[int, int]]:
@@ -413,23 +435,27 @@ class ObjectTracker:
             rows = [k for k in range(len(views)) if k not in out and k not in dups]
             free = [b for b in cols if b not in {t for t, _ in out.values()}]
             if rows and free:
-                cost = np.array([[self._cost(self.tracks[b], views[k], factor,
-                                             b == own_track.get(pair_of.get(k, -1), -1)) for b in free] for k in rows])
+                cost, d2 = self._costs([views[k] for k in rows], free, factor)
+                for r, k in enumerate(rows):         # the track of the own vehicle it is paired with
+                    partner = own_track.get(pair_of.get(k, -1), -1)
+                    if partner in free:
+                        cost[r, free.index(partner)] -= cfg.pair_bonus
                 finite = np.isfinite(cost)
                 if finite.any():
                     shifted = np.where(finite, cost - cost[finite].min() + 1.0, 1e9)
                     for r, c in zip(*linear_sum_assignment(shifted)):
                         if finite[r, c]:
                             out[rows[r]] = (free[c], factor)
-            if factor == 1.0:
-                mine = {t for t, _ in out.values()}
-                for k in range(len(views)):
-                    if k in out:
-                        continue
-                    near = [b for b in mine if np.hypot(*(views[k].z - self.tracks[b].x[:2])) < cfg.duplicate_m
-                            or _position_nll(self.tracks[b], views[k])[0] < CHI2_2_999]
-                    if near:
-                        dups[k] = min(near, key=lambda b: _position_nll(self.tracks[b], views[k])[0])
+            if factor == 1.0:                    # second detections of a vehicle a view went to
+                mine = sorted({t for t, _ in out.values()})
+                left = [k for k in range(len(views)) if k not in out]
+                if mine and left:
+                    _, d2 = self._costs([views[k] for k in left], mine, 1.0)
+                    dist = np.array([[np.hypot(*(views[k].z - self.tracks[b].x[:2])) for b in mine] for k in left])
+                    for r, k in enumerate(left):
+                        near = (dist[r] < cfg.duplicate_m) | (d2[r] < CHI2_2_999)
+                        if near.any():
+                            dups[k] = mine[int(np.argmin(np.where(near, d2[r], np.inf)))]
         return out, dups
 
     def _start(self, tr: ObjectTrack, views: list[_View]) -> None:
