@@ -441,13 +441,14 @@ def _scene(msg: dict, radar_height: float) -> bytes:
         track = int(row[4]) if len(row) > 4 and row[4] >= 0 else None
         if track is not None and track in seen:       # a second detection of one tracked vehicle
             track = None
+        if track is not None:
+            seen.add(track)
         name = SOURCE_NAMES.get(src, str(src))
         e = _entity(update, stamp, ego, f"{name}/{index}" if track is None else f"track/{track}")
         label = f"{name} {index}" if track is None else f"#{track} ({name})"
         _box(e, x, y, z, SOURCE_COLOURS.get(src, (1.0, 1.0, 1.0, 0.5)), label)
         t = tracks.get(track) if track is not None else None
         if t is not None:
-            seen.add(track)
             _heading(e, x, y, z, float(t["vx"]), float(t["vy"]))
             _meta(e, source=name, index=index, track=track, vx=round(float(t["vx"]), 3), vy=round(float(t["vy"]), 3))
         else:

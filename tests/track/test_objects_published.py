@@ -87,12 +87,13 @@ def _scene(msg: dict):
 
 def test_foxglove_boxes_of_moving_tracks_turn_along_their_velocity():
     msg = {"vehicle": "ego1", "seq": 1, "stamp": 5.0, "cavs": [],
-           "objects": [[1.0, 20.0, 0, 0, 7], [-3.0, 30.0, 2, 1, 8], [-3.2, 30.5, 0, 2, 8], [5.0, 9.0, 0, 3, -1]],
+           "objects": [[1.0, 20.0, 0, 0, 7], [-3.0, 30.0, 2, 1, 8], [-3.2, 30.5, 0, 2, 8], [5.0, 9.0, 0, 3, -1],
+                       [9.0, 50.0, 1, 0, 9], [9.5, 50.2, 1, 1, 9]],       # 9: a young track, not published
            "tracks": [{"id": 7, "x": 1.0, "y": 20.0, "vx": -10.0, "vy": 0.0},
                       {"id": 8, "x": -3.0, "y": 30.0, "vx": 0.2, "vy": 0.3}]}
     update = _scene(msg)
     by_id = {e.id: e for e in update.entities}
-    assert set(by_id) == {"track/7", "track/8", "own/2", "own/3"}        # a second detection of 8: its own box
+    assert set(by_id) == {"track/7", "track/8", "own/2", "own/3", "track/9", "other/1"}   # second detections: own boxes
     o = by_id["track/7"].cubes[0].pose.orientation                        # moving along -x: length turned onto x
     yaw = 2 * math.atan2(o.z, o.w)
     assert math.isclose(abs(math.cos(yaw)), 0.0, abs_tol=1e-9) and len(by_id["track/7"].arrows) == 1
