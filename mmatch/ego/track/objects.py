@@ -136,6 +136,10 @@ class _View:
     g: float
     u: np.ndarray
 
+    @property
+    def has_radial(self) -> bool:
+        return bool(np.isfinite(self.g) and np.isfinite(self.u[0]) and np.isfinite(self.u[1]))
+
 
 def _rot(phi: float) -> np.ndarray:
     c, s = np.cos(phi), np.sin(phi)
@@ -205,7 +209,7 @@ def _h_position(v: _View) -> np.ndarray:
 
 
 def _h_radial(v: _View) -> np.ndarray | None:
-    return np.r_[0.0, 0.0, v.u] if np.isfinite(v.g) and np.all(np.isfinite(v.u)) else None
+    return np.array([0.0, 0.0, v.u[0], v.u[1]]) if v.has_radial else None
 
 
 def _position_nll(tr: ObjectTrack, v: _View, factor: float = 1.0) -> tuple[float, float]:
@@ -277,9 +281,10 @@ def _source(views: list[_View]) -> int:
 def _same(a: ObjectTrack, b: ObjectTrack, cfg: ObjectTrackConfig) -> bool:
     """Whether two tracks are one vehicle (see ObjectTrackConfig.duplicate_*)."""
     d = a.x[:2] - b.x[:2]
+    if d @ d >= cfg.duplicate_m ** 2 or np.sum((a.x[2:] - b.x[2:]) ** 2) >= cfg.duplicate_mps ** 2:
+        return False
     S = a.P[:2, :2] + b.P[:2, :2] + np.eye(2) * cfg.duplicate_sigma_m ** 2
-    return bool(np.hypot(*d) < cfg.duplicate_m and d @ np.linalg.solve(S, d) < CHI2_2_99
-                and np.hypot(*(a.x[2:] - b.x[2:])) < cfg.duplicate_mps)
+    return bool(d @ np.linalg.solve(S, d) < CHI2_2_99)
 
 
 class ObjectTracker:
