@@ -146,7 +146,8 @@ class Fuser:
             return self._tracked(own, other, pred, cands, match, timings, predicted is None, a.reason, (T, a))
         sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
                     candidates=cands)
-        if a.confidence < self._threshold or a.features.get("margin", 1.0) < self.config.confidence.min_margin:
+        ambiguous = self._threshold > 0 and a.features.get("margin", 1.0) < self.config.confidence.min_margin
+        if a.confidence < self._threshold or ambiguous:
             # not sure enough, or the matcher's own evidence prefers a distinct alternative (two
             # judges disagree: ambiguous); the vehicles both probably see stay reported (with the estimate's confidence); the
             # objects are not merged without a transform
@@ -222,14 +223,15 @@ class Fuser:
         else:
             R, t = aligned.T[None, :2, :2], aligned.T[None, :2, 3]
         dz = aligned.T[2, 3]
-        rated = assess_many(ctx, R, t, match.pairs, match)
+        pairs = [np.asarray(match.pairs, np.int32).reshape(-1, 2)] * len(R)
+        extra = _other_hypotheses(match, R, t, self.config.extra_hypotheses)
+        for Rh, th in extra:
+            pairs.append(self._scorer.pairs_under(own, other, Rh, th, scale, (ctx.A, ctx.B)))
+        if extra:
+            R = np.concatenate([R, np.stack([r for r, _ in extra])])
+            t = np.concatenate([t, np.stack([x for _, x in extra])])
+        rated = assess_many(ctx, R, t, pairs, match)
         Ts = [se2_to_matrix(R[h], t[h], dz) for h in range(len(R))]
-        pairs = [np.asarray(match.pairs, np.int32).reshape(-1, 2)] * len(Ts)
-        for Rh, th in _other_hypotheses(match, R, t, self.config.extra_hypotheses):
-            ph = self._scorer.pairs_under(own, other, Rh, th, scale, (ctx.A, ctx.B))
-            rated += assess_many(ctx, Rh[None], th[None], ph, match)
-            Ts.append(se2_to_matrix(Rh, th, dz))
-            pairs.append(ph)
         p = np.array([x.confidence for x in rated])
         k = int(np.nanargmax(p)) if np.isfinite(p).any() else 0
         return Ts[k], rated[k], list(zip(Ts, rated)), pairs[k]

@@ -66,8 +66,8 @@ class ConfidenceConfig:
     """threshold: an estimate is "fused" only when its probability reaches this (else "no
     estimate" with the reason; None: the fitted model's threshold); min_margin: an estimate
     whose margin over the best distinct alternative, by the matcher's own evidence, is below
-    this is refused as ambiguous whatever its probability (the arbiter and the matcher
-    disagree: on the fitting scenes a negative margin went with 40 % of the gross errors and
+    this is refused as ambiguous whatever its probability, unless the threshold is 0 (emit
+    everything) (the arbiter and the matcher disagree: on the fitting scenes a negative margin went with 40 % of the gross errors and
     5 % of the successes); distinct_m / distinct_deg: alternatives farther than this
     count as distinct; bg_sigma_m / bg_gate_m / bg_cell_m: background correspondence noise,
     gate and the cell size within which background terms count as one; heading_sigma_deg:
@@ -269,16 +269,40 @@ class _FreeSpace:
         return np.where(n_in >= 5, bad.reshape(H, N).sum(axis=1) / np.maximum(n_in, 1), 0.0)
 
 
-def _information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray
+def _groups(pairs: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(pairs, hypothesis indices) for each distinct set of matched pairs among the hypotheses."""
+    seen: dict[bytes, list[int]] = {}
+    for h, p in enumerate(pairs):
+        seen.setdefault(np.ascontiguousarray(p, np.int64).tobytes(), []).append(h)
+    return [(pairs[idx[0]], np.asarray(idx, int)) for idx in seen.values()]
+
+
+def _information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: list[np.ndarray]
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per hypothesis (H): information matrix (3, 3) of (x, y, yaw), residual chi^2, its degrees
-    of freedom, and the mean matched-pair chi^2."""
-    cfg, A, B = ctx.cfg, ctx.A, ctx.B
+    """Per hypothesis (H), each with its matched pairs: information matrix (3, 3) of (x, y, yaw),
+    residual chi^2, its degrees of freedom, and the mean matched-pair chi^2."""
+    cfg = ctx.cfg
     H = len(R)
     info = np.zeros((H, 3, 3))
     chi2, dof, pair_chi2 = np.zeros(H), np.zeros(H), np.zeros(H)
+    for pg, idx in _groups(pairs):
+        if len(pg):
+            i_, c_, d_, p_ = _pair_information(ctx, R[idx], t[idx], pg)
+            info[idx] += i_
+            chi2[idx] += c_
+            dof[idx] += d_
+            pair_chi2[idx] = p_
+    _background_information(ctx, R, t, info, chi2, dof)
+    return info, chi2, dof, pair_chi2
+
+
+def _pair_information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray):
+    """The matched pairs' part of `_information` for hypotheses sharing one set of pairs."""
+    A, B = ctx.A, ctx.B
+    H = len(R)
+    info = np.zeros((H, 3, 3))
+    i, j = pairs[:, 0], pairs[:, 1]
     if len(pairs):
-        i, j = pairs[:, 0], pairs[:, 1]
         dm = mahalanobis(A, B, R, t)[:, i, j]                                   # (H, P)
         b = B.centres[j]
         S = A.cov[i][None] + np.einsum("hab,pbc,hdc->hpad", R, B.cov[j], R)      # (H, P, 2, 2)
@@ -287,8 +311,15 @@ def _information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarr
         W = np.linalg.inv(S)
         info += np.einsum("hpai,hpab,hpbj->hij", J, W, J)
         pair_chi2 = np.mean(dm ** 2, axis=1)
-        chi2 += np.sum(np.minimum(dm ** 2, 25.0), axis=1)
-        dof += 2 * len(pairs)
+        chi2 = np.sum(np.minimum(dm ** 2, 25.0), axis=1)
+    return info, chi2, 2.0 * len(pairs), pair_chi2
+
+
+def _background_information(ctx: PairContext, R: np.ndarray, t: np.ndarray, info: np.ndarray,
+                            chi2: np.ndarray, dof: np.ndarray) -> None:
+    """Adds the background's and the heading prior's part of `_information` in place."""
+    cfg = ctx.cfg
+    H = len(R)
     if ctx.tree_own is not None and len(ctx.bg_other) >= 3:
         src = ctx.bg_other
         moved = np.einsum("hab,nb->hna", R, src) + t[:, None]                    # (H, N, 2)
@@ -313,7 +344,6 @@ def _information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarr
     if ctx.yaws is not None:
         gap = np.abs(_wrap(_yaw(R)[:, None] - ctx.yaws)).min(axis=1)
         info[:, 2, 2] += np.where(gap < np.radians(cfg.heading_gate_deg), np.radians(cfg.heading_sigma_deg) ** -2, 0)
-    return info, chi2, dof, pair_chi2
 
 
 def covariances(info: np.ndarray, chi2: np.ndarray, dof: np.ndarray, inflation: float) -> np.ndarray:
@@ -337,14 +367,14 @@ def _variants(R: np.ndarray, t: np.ndarray, pivot: np.ndarray, axis: np.ndarray 
     return np.concatenate(Rs), np.concatenate(ts)
 
 
-def _margins(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray,
+def _margins(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: list[np.ndarray],
              hyp: Hypotheses | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per hypothesis: margin over its best distinct alternative (-1 ... 1), whether one exists,
     and the ambiguity (alternative score / own score)."""
     H = len(R)
     if ctx.scorer is None:
         return np.ones(H), np.zeros(H), np.zeros(H)
-    pivot = np.broadcast_to(ctx.A.centres[pairs[:, 0]].mean(axis=0), (H, 2)) if len(pairs) else t
+    pivot = np.array([ctx.A.centres[p[:, 0]].mean(axis=0) if len(p) else t[h] for h, p in enumerate(pairs)])
     Rv, tv = _variants(R, t, pivot, ctx.main_axis, ctx.cfg)
     PR, Pt = np.concatenate([R, Rv]), np.concatenate([t, tv])
     sc = ctx.scorer(PR, Pt)
@@ -410,22 +440,28 @@ def _solve_two_view(ge, ue, gc, uc, R, pairs, min_sin: float = 0.25):
     return v, ok
 
 
-def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray,
+def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
              match: MatchResult | None = None, inflation: float = 1.0
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Evidence (H, len(FEATURES)), covariances (H, 3, 3) and ambiguities (H,) of hypotheses
-    R (H, 2, 2), t (H, 2) with the matched pairs (P, 2), vectorised over the hypotheses."""
+    R (H, 2, 2), t (H, 2) with their matched pairs: one (P, 2) array for all, or a list of H,
+    vectorised over the hypotheses (the pair terms over each distinct set of pairs)."""
     cfg = ctx.cfg
     R, t = np.asarray(R, float), np.asarray(t, float)
-    pairs = np.asarray(pairs, int).reshape(-1, 2)
     H = len(R)
+    if isinstance(pairs, np.ndarray):
+        pairs = [np.asarray(pairs, int).reshape(-1, 2)] * H
+    pairs = [np.asarray(p, int).reshape(-1, 2) for p in pairs]
     info, chi2, dof, pair_chi2 = _information(ctx, R, t, pairs)
     cov = covariances(info, chi2, dof, inflation)
     margin, has_alt, amb = _margins(ctx, R, t, pairs, match.hypotheses if match else None)
-    v, solved = _solve_two_view(ctx.ge, ctx.ue, ctx.gc, ctx.uc, R, pairs)
-    fast = np.linalg.norm(v, axis=2) < cfg.max_speed_mps
-    n_solved = solved.sum(axis=1)
-    plausible = np.where(n_solved > 0, (fast & solved).sum(axis=1) / np.maximum(n_solved, 1), 0.5)
+    n_solved, plausible = np.zeros(H), np.full(H, 0.5)
+    for pg, idx in _groups(pairs):
+        v, solved = _solve_two_view(ctx.ge, ctx.ue, ctx.gc, ctx.uc, R[idx], pg)
+        fast = np.linalg.norm(v, axis=2) < cfg.max_speed_mps
+        ns = solved.sum(axis=1)
+        n_solved[idx] = ns
+        plausible[idx] = np.where(ns > 0, (fast & solved).sum(axis=1) / np.maximum(ns, 1), 0.5)
     overlap, back = np.zeros(H), np.zeros(H)
     theirs = np.einsum("hab,nb->hna", R, ctx.bg_other) + t[:, None] if len(ctx.bg_other) else None
     if ctx.tree_own is not None and ctx.tree_other is not None:
@@ -448,7 +484,7 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray,
     pos = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 1e-9) / max(inflation, 1e-9))
     yaw_s = np.sqrt(np.maximum(cov[:, 2, 2], 1e-12) / max(inflation, 1e-9))
     cols = {
-        "n_pairs": np.full(H, float(min(len(pairs), 8))),
+        "n_pairs": np.array([float(min(len(p), 8)) for p in pairs]),
         "pair_chi2": np.minimum(pair_chi2, 25.0),
         "margin": margin,
         "has_alternative": has_alt,
@@ -488,7 +524,7 @@ def threshold(cfg: ConfidenceConfig = ConfidenceConfig()) -> float:
     return model.threshold if model is not None else 0.0
 
 
-def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray,
+def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
                 match: MatchResult | None = None) -> list[Assessment]:
     """Confidence, covariance, ambiguity and the reason against each hypothesis (see the module doc).
 
