@@ -22,8 +22,8 @@ from mmatch.errors import ConfigError
 log = logging.getLogger(__name__)
 
 ROLES = ("cav", "ego", "both")
-RADAR_SOURCES = ("uart", "dca1000", "replay", "sim")  # the loop is driven by radar frames
-CAMERA_SOURCES = ("opencv", "oak", "replay", "sim", "none")
+RADAR_SOURCES = ("uart", "dca1000", "replay", "sim", "scene")  # the loop is driven by radar frames
+CAMERA_SOURCES = ("opencv", "oak", "replay", "sim", "scene", "none")
 
 
 def _opt(default: Any, *, choices: tuple | None = None, lo: float | None = None,
@@ -101,6 +101,24 @@ class SimSection:
                                  doc="this vehicle's clock error: stamps = true capture time + this, s")
     covisible: int = _opt(2, lo=0, hi=20,
                           doc="redraw each 10 s world until both cameras see this many common vehicles")
+
+
+@dataclass(frozen=True)
+class SceneSection:
+    """Scene files as the sensors (radar.source and camera.source "scene"): one drive of
+    `mmatch-scene/1` files (docs/formats.md "Sequences", e.g. from `mmatch sim --sequences`),
+    each vehicle playing its own side of the files at their capture stamps. Frames are due on
+    the drive's clock: a capture stamp t is due at wall time start + (t - the first Ego stamp)."""
+
+    path: str = _opt("", doc="folder of mmatch-scene/1 files of one or more drives")
+    sequence: str = _opt("", doc="meta.sequence of the drive to play; empty: the first in the folder")
+    view: str = _opt("auto", choices=("auto", "ego", "cav"),
+                     doc="which side of the files this vehicle is; auto: cav for role cav, else ego")
+    start: float = _opt(0.0, lo=0.0, doc="unix time (s) at which the drive's first Ego frame is due; "
+                                         "0: 2 s after start-up. Two vehicles of one drive need the same")
+    lead_s: float = _opt(0.0, lo=0.0, hi=5.0,
+                         doc="deliver each frame this long before it is due (a CAV of a recording leads "
+                             "its Ego, so its shared frames are there first), s")
 
 
 @dataclass(frozen=True)
@@ -194,7 +212,7 @@ class AuthSection:
     keys: str = _opt("auto", choices=("auto", "dev", "files"),
                      doc="files: key_file and trust_file; dev: keys generated on this machine in "
                          "dev_dir (simulation only, flagged in health); auto: dev for a simulated "
-                         "radar without key_file, else files")
+                         "radar or scene files without key_file, else files")
     key_file: str = _opt("", doc="this vehicle's Ed25519 private key (PEM), from `mmatch keys`")
     trust_file: str = _opt("", doc="the fleet's public keys (TOML); re-read on change or SIGHUP")
     dev_dir: str = _opt("", doc="dev keys folder; empty = ~/.cache/mmatch/dev-keys")
@@ -219,6 +237,7 @@ class VehicleConfig:
     radar: RadarSection = field(default_factory=RadarSection)
     camera: CameraSection = field(default_factory=CameraSection)
     sim: SimSection = field(default_factory=SimSection)
+    scene: SceneSection = field(default_factory=SceneSection)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
     ego: EgoSection = field(default_factory=EgoSection)
     loop: LoopSection = field(default_factory=LoopSection)
@@ -315,6 +334,11 @@ def _cross_checks(cfg: VehicleConfig) -> None:
         raise ConfigError("radar.cfg: required when radar.source = \"dca1000\"")
     if cfg.radar.source == "replay" and not cfg.radar.path:
         raise ConfigError("radar.path: required when radar.source = \"replay\"")
+    if cfg.radar.source == "scene" and not cfg.scene.path:
+        raise ConfigError("scene.path: required when radar.source = \"scene\"")
+    if cfg.camera.source == "scene" and cfg.radar.source != "scene":
+        raise ConfigError("camera.source: \"scene\" needs radar.source = \"scene\" (the detections come "
+                          "with the radar frames)")
     if cfg.camera.source == "replay" and not cfg.camera.path:
         raise ConfigError("camera.path: required when camera.source = \"replay\"")
     if cfg.camera.source in ("opencv", "oak") and not cfg.camera.calibration:
@@ -344,7 +368,7 @@ def auth_mode(cfg: VehicleConfig) -> str:
     """"dev" or "files": how this vehicle gets its keys (AuthSection.keys resolved)."""
     if cfg.auth.keys != "auto":
         return cfg.auth.keys
-    return "dev" if cfg.radar.source == "sim" and not cfg.auth.key_file else "files"
+    return "dev" if cfg.radar.source in ("sim", "scene") and not cfg.auth.key_file else "files"
 
 
 def from_dict(data: dict, *, source: str = "<dict>") -> VehicleConfig:

@@ -190,11 +190,14 @@ class VehicleLoop:
             publish = self._publish if transport is not None else None
             height = getattr(radar, "radar_height", cfg.radar.height_m)
             signer = identity.signer if identity is not None else None
+            # a source with a clock of its own (scene files keep their drive's time) sets the
+            # time that waiting, link states and the stamp window are judged on
+            clock = getattr(radar, "clock", None) or time.time
             verifier = None
             if identity is not None and identity.trust is not None:
-                verifier = verifier_for(cfg, identity.trust)
+                verifier = verifier_for(cfg, identity.trust, clock=clock)
             self.node = Node(cfg, pipeline, camera.camera, height, publish=publish, recorder=recorder,
-                             wait_s=cfg.ego.wait_s, signer=signer, verifier=verifier,
+                             wait_s=cfg.ego.wait_s, clock=clock, signer=signer, verifier=verifier,
                              budget_s=cfg.ego.frame_budget_s)
             self.node.on_result = self._on_result
         if recorder is not None and hasattr(camera, "camera"):

@@ -113,30 +113,6 @@ def _finite(x: Any) -> Any:
     return x
 
 
-def _with_track_ids(rows: np.ndarray, tracked: Any, sender: str) -> np.ndarray:
-    """Object rows (O, 4) x, y, source, index with a 5th column, the object's track id (-1: none),
-    when objects are tracked (`tracked`: an ObjectFrame; None: the rows as they are). Source 0
-    and 2 rows index the own vehicles, source 1 rows the vehicles of `sender`'s frame."""
-    if tracked is None:
-        return rows
-    ids = np.full(len(rows), -1.0)
-    own, other = tracked.own_ids, tracked.other_ids.get(sender, np.zeros(0, np.int64))
-    for k, (src, idx) in enumerate(rows[:, 2:4].astype(int)):
-        table = other if src == 1 else own
-        if 0 <= idx < len(table):
-            ids[k] = table[idx]
-    return np.column_stack([rows, ids])
-
-
-def _track_json(t: Any, stamp: float) -> dict:
-    """One object track for the fused message (Ego radar frame; m, m/s, s)."""
-    return {"id": int(t.id), "x": round(float(t.x[0]), 6), "y": round(float(t.x[1]), 6),
-            "vx": round(float(t.x[2]), 6), "vy": round(float(t.x[3]), 6),
-            "covariance": [[round(float(v), 9) for v in row] for row in np.asarray(t.P, float)],
-            "source": int(t.source), "updates": int(t.hits), "age_s": round(float(stamp - t.first_stamp), 6),
-            "coasting_s": round(float(stamp - t.last_update), 6)}
-
-
 def dumps(msg: dict) -> bytes:
     """Compact JSON of a message; NaN and infinity become null (JSON has neither)."""
     try:
@@ -378,6 +354,8 @@ class Node:
             self.counters.budget_skipped += len(skipped)
             log.warning("frame %d: over the time budget, not fused with %s", frame.seq,
                         ", ".join(skipped))
+        from mmatch.ego.track.objects import object_rows, track_record
+
         fused = [r for r in results if r[2].status == "fused"]
         tracked = None
         if self.pipeline.track_objects is not None:  # once per frame, after every CAV
@@ -385,14 +363,14 @@ class Node:
         if fused:
             status = "fused"
             first = np.asarray(fused[0][2].objects, np.float64).reshape(-1, 4)
-            objects.append(_with_track_ids(first, tracked, fused[0][1].sender))
+            objects.append(object_rows(first, tracked, fused[0][1].sender))
             for _, other, r in fused[1:]:
                 o = np.asarray(r.objects, np.float64).reshape(-1, 4)
-                objects.append(_with_track_ids(o[o[:, 2] == 1], tracked, other.sender))
+                objects.append(object_rows(o[o[:, 2] == 1], tracked, other.sender))
         else:
             single = self.pipeline.fuse(own, None)
             status = "no-estimate" if results else "single"
-            objects.append(_with_track_ids(np.asarray(single.objects, np.float64).reshape(-1, 4), tracked, ""))
+            objects.append(object_rows(np.asarray(single.objects, np.float64).reshape(-1, 4), tracked, ""))
         c = self.counters
         c.fused += bool(fused)
         c.paired += bool(results)
@@ -410,7 +388,7 @@ class Node:
                            **{f"fuse:{k}": v for k, v in fuse_ms.items()}},
         }
         if tracked is not None:
-            msg["tracks"] = [_track_json(t, frame.stamp) for t in tracked.tracks]
+            msg["tracks"] = [track_record(t, frame.stamp) for t in tracked.tracks]
         if skipped:
             msg["budget_skipped"] = skipped
         msg["latency_ms"] = (self.clock() - frame.stamp) * 1e3

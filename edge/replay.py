@@ -187,6 +187,73 @@ def compare_fused(recorded: list[dict], replayed: list[dict], atol: float = 1e-6
             "match": bool(recorded) and not differ and not missing and not extra}
 
 
+def load_eval_frames(path: str | Path) -> list[dict]:
+    """The tracked per-frame rows of `mmatch eval --sequences --json FILE` (FILE or its
+    FILE.frames.json); ParseError naming the file when it holds none."""
+    path = Path(path)
+    if not path.name.endswith(".frames.json"):
+        sibling = path.with_name(path.name[:-len(".json")] + ".frames.json") if path.name.endswith(".json") else None
+        if sibling is not None and sibling.exists():
+            path = sibling
+    try:
+        data = json.loads(path.read_text())
+        rows = data["tracked"]
+        if not isinstance(rows, list):
+            raise TypeError("tracked is not a list")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ParseError(f"{path}: not the frames of `mmatch eval --sequences` ({exc})") from exc
+    return [r for r in rows if isinstance(r, dict) and "rejected" not in r]
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Exact equality of JSON values, NaN and null alike (a non-finite number is null on the wire)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    nan = lambda v: v is None or (isinstance(v, float) and v != v)  # noqa: E731
+    if nan(a) or nan(b):
+        return nan(a) and nan(b)
+    return a == b
+
+
+def compare_eval(fused: list[dict], rows: list[dict]) -> dict[str, Any]:
+    """Replayed fused messages against `mmatch eval --sequences` tracked rows of the same drive,
+    frame by frame (joined on the Ego's capture stamp), exactly: the status, the first CAV's
+    T_ego_cav, confidence and covariance, the objects with their track ids and the tracks.
+
+    The drive is the sequence of `rows` sharing most stamps with `fused`; its frames without a
+    replayed message are "missing". Returns {"sequence", "frames", "same", "differ": [{"frame",
+    "fields"}], "missing": [frame, ...], "match"}."""
+    by_stamp = {logschema.stamp_key(float(m["stamp"])): m for m in fused}
+    seqs: dict[str, list[dict]] = {}
+    for r in rows:
+        seqs.setdefault(str(r.get("sequence")), []).append(r)
+    if not seqs:
+        return {"sequence": None, "frames": 0, "same": 0, "differ": [], "missing": [], "match": False}
+    name = max(sorted(seqs), key=lambda s: sum(logschema.stamp_key(float(r["stamp"])) in by_stamp for r in seqs[s]))
+    same, differ, missing = 0, [], []
+    for r in sorted(seqs[name], key=lambda r: r["frame"]):
+        m = by_stamp.get(logschema.stamp_key(float(r["stamp"])))
+        if m is None:
+            missing.append(r["frame"])
+            continue
+        cav = m["cavs"][0] if m.get("cavs") else {}
+        pairs = {"status": (m["status"], r["status"]),
+                 "T_ego_cav": (cav.get("T_ego_cav"), r.get("T_ego_cav")),
+                 "confidence": (cav.get("confidence"), r.get("confidence")),
+                 "covariance": (cav.get("covariance"), r.get("covariance")),
+                 "objects": (m.get("objects"), r.get("fused_objects")),
+                 "tracks": (m.get("tracks"), r.get("tracks"))}
+        bad = sorted(k for k, (a, b) in pairs.items() if not _same(a, b))
+        if bad:
+            differ.append({"frame": r["frame"], "fields": bad})
+        else:
+            same += 1
+    return {"sequence": name, "frames": len(seqs[name]), "same": same, "differ": differ, "missing": missing,
+            "match": same == len(seqs[name])}
+
+
 def _close(a: Any, b: Any, atol: float) -> bool:
     if isinstance(a, dict) and isinstance(b, dict):
         return a.keys() == b.keys() and all(_close(a[k], b[k], atol) for k in a)
@@ -233,11 +300,13 @@ def _replay_config(log_path: str | Path, is_log: bool, config_path: str | None, 
 def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] = (), fast: bool = False,
            speed: float = 1.0, process: bool = True, publish: bool = False, log_dir: str | None = None,
            fused_out: str | None = None, frames_out: str | None = None,
-           compare: bool = False) -> dict[str, Any]:
+           compare: bool = False, compare_eval_path: str | None = None) -> dict[str, Any]:
     """Replay a log or capture through a `Node`; returns a summary dict.
 
     A log replays its own frames and the shared frames it received, in the recorded order;
     a raw UART capture yields radar frames (no camera) through the TI streaming reader.
+    compare: against the fused results the log holds; compare_eval_path: against the tracked
+    frames of `mmatch eval --sequences` on the files the log was recorded from (`compare_eval`).
     """
     import contextlib
 
@@ -350,6 +419,8 @@ def replay(path: str | Path, *, config_path: str | None = None, sets: list[str] 
         summary["status_counts"] = statuses
     if compare:
         summary["compare"] = compare_fused(recorded, fused)
+    if compare_eval_path:
+        summary["compare_eval"] = compare_eval(fused, load_eval_frames(compare_eval_path))
     if fused_out:
         with open(fused_out, "w") as f:
             for m in fused:

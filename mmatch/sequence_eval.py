@@ -23,6 +23,7 @@ import numpy as np
 from mmatch.errors import MMatchError, SceneFormatError
 from mmatch.evaluate import EvalConfig, evaluate_with, prepare_scene, report
 from mmatch.metrics import is_gross
+from mmatch.ego.track.objects import object_rows, track_record
 from mmatch.object_eval import objects_report
 
 log = logging.getLogger(__name__)
@@ -93,7 +94,8 @@ def evaluate_sequence(files: list[str], cfg: SequenceEvalConfig = SequenceEvalCo
 
     Returns {"tracked": [per-frame result], "per_frame": [...]} (the `mmatch eval` per-scene
     fields plus "sequence", "frame" and "stamp", the Ego's capture time in s; the tracked rows
-    also "objects", the frame's object-track figures of mmatch/object_eval.py). on_frame(scene,
+    also "objects", the frame's object-track figures of mmatch/object_eval.py, and
+    "fused_objects" and "tracks" as the vehicle service publishes them). on_frame(scene,
     mode, FusionResult) is called after each fusion (for tests).
     """
     from mmatch.object_eval import ObjectScore
@@ -123,6 +125,9 @@ def evaluate_sequence(files: list[str], cfg: SequenceEvalConfig = SequenceEvalCo
                     own, received = prepared[0], prepared[1]
                     objects = fusers[mode].track_objects(own, [(received, result)])
                     res["objects"] = score.add(scene, own, received, result, objects)
+                    # what the service publishes (edge/node.py): objects with track ids, tracks
+                    res["fused_objects"] = np.round(object_rows(result.objects, objects, received.sender), 6).tolist()
+                    res["tracks"] = [track_record(t, float(own.stamp)) for t in objects.tracks]
                 if on_frame is not None:
                     on_frame(scene, mode, result)
             res.update(file=path, sequence=scene.meta["sequence"], frame=int(scene.meta["frame"]),

@@ -23,6 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--compare", action="store_true",
                    help="compare with the fused results recorded in the log; exit 1 on any difference, a result "
                         "missing or extra, or a log without recorded results")
+    p.add_argument("--compare-eval", metavar="FILE",
+                   help="compare with `mmatch eval --sequences --json FILE` (or its FILE.frames.json) on the scene "
+                        "files the log was recorded from, frame by frame and exactly; exit 1 on any difference")
     p.add_argument("--json", help="write a summary JSON here")
 
 
@@ -37,13 +40,14 @@ def run(args: argparse.Namespace) -> int:
     summary = replay(args.log, config_path=args.config, sets=args.set, fast=args.fast,
                      speed=args.speed, process=not args.no_process, publish=args.publish,
                      log_dir=args.log_dir, fused_out=args.fused_out, frames_out=args.frames_out,
-                     compare=args.compare)
+                     compare=args.compare, compare_eval_path=args.compare_eval)
     text = json.dumps(summary, indent=2)
     if args.json:
         with open(args.json, "w") as f:
             f.write(text)
     print(text)
-    cmp = summary.get("compare")
-    if cmp is not None and not cmp["match"]:  # any difference, or nothing recorded to compare
-        return 1
+    for key in ("compare", "compare_eval"):
+        cmp = summary.get(key)
+        if cmp is not None and not cmp["match"]:  # any difference, or nothing to compare
+            return 1
     return 0

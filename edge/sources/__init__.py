@@ -1,6 +1,6 @@
 """Sensor sources: one small interface per device kind, backends chosen by name.
 
-Radar backends: uart, dca1000, replay, sim. Camera backends: opencv, oak, replay, sim.
+Radar backends: uart, dca1000, replay, sim, scene. Camera backends: opencv, oak, replay, sim, scene.
 `open_radar(cfg)` / `open_camera(cfg)` look the backend up by the name in the config and
 import it only then (heavy libraries stay out of `mmatch --help`).
 """
@@ -21,12 +21,14 @@ RADAR_BACKENDS: dict[str, str] = {
     "dca1000": "mmatch.edge.sources.dca1000:Dca1000Radar",
     "replay": "mmatch.edge.sources.replay:ReplayRadar",
     "sim": "mmatch.edge.sources.sim:SimRadar",
+    "scene": "mmatch.edge.sources.scene:SceneRadar",
 }
 CAMERA_BACKENDS: dict[str, str] = {
     "opencv": "mmatch.edge.sources.camera:OpenCvCamera",
     "oak": "mmatch.edge.sources.camera:OakCamera",
     "replay": "mmatch.edge.sources.replay:ReplayCamera",
     "sim": "mmatch.edge.sources.sim:SimCamera",
+    "scene": "mmatch.edge.sources.scene:SceneCamera",
     "none": "mmatch.edge.sources.base:NoCamera",
 }
 

@@ -490,3 +490,29 @@ class ObjectTracker:
         out.sort(key=lambda tr: tr.id)
         self.tracks = out
         return merged
+
+
+def object_rows(rows: np.ndarray, tracked: ObjectFrame | None, sender: str) -> np.ndarray:
+    """Fused object rows (O, 4) x, y, source, index (fusion.merge_objects) with a 5th column,
+    each object's track id (-1: none), when objects are tracked (`tracked`; None: the rows as
+    they are). Source 0 and 2 rows index the own vehicles, source 1 rows those of `sender`."""
+    rows = np.asarray(rows, np.float64).reshape(-1, 4)
+    if tracked is None:
+        return rows
+    ids = np.full(len(rows), -1.0)
+    own, other = tracked.own_ids, tracked.other_ids.get(sender, np.zeros(0, np.int64))
+    for k, (src, idx) in enumerate(rows[:, 2:4].astype(int)):
+        table = other if src == 1 else own
+        if 0 <= idx < len(table):
+            ids[k] = table[idx]
+    return np.column_stack([rows, ids])
+
+
+def track_record(t: ObjectTrack, stamp: float) -> dict:
+    """One object track as the fused message carries it (docs/formats.md; Ego radar frame, m,
+    m/s, s): id, x, y, vx, vy, covariance (4x4), source, updates, age_s, coasting_s."""
+    return {"id": int(t.id), "x": round(float(t.x[0]), 6), "y": round(float(t.x[1]), 6),
+            "vx": round(float(t.x[2]), 6), "vy": round(float(t.x[3]), 6),
+            "covariance": [[round(float(v), 9) for v in row] for row in np.asarray(t.P, float)],
+            "source": int(t.source), "updates": int(t.hits), "age_s": round(float(stamp - t.first_stamp), 6),
+            "coasting_s": round(float(stamp - t.last_update), 6)}
