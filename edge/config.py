@@ -184,6 +184,10 @@ class LoopSection:
                                 doc="wait this long at most for detections at least as new as the radar frame")
     status_interval_s: float = _opt(5.0, lo=0.0, lo_open=True, hi=3600.0,
                                      doc="status line, health message and systemd STATUS= every this, s")
+    gil_switch_ms: float = _opt(50.0, lo=1.0, hi=200.0,
+                                doc="Python's thread switch interval, ms: how long the fusing thread "
+                                    "keeps the interpreter before the network threads may take it "
+                                    "(5 is Python's own; 50 shortens the latency tail under a flood)")
 
 
 @dataclass(frozen=True)

@@ -12,12 +12,24 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 
 
+def pinned_time_offset(episode: int = 0) -> float:
+    """sim.time_offset_s that starts scenario time now at the beginning of `episode`: the
+    simulated vehicles of one test then drive the same worlds on every run (left alone, the
+    world is the one of the wall clock's current 10 s slot, a different one each run, and how
+    often the Ego is sure enough to fuse depends on the world). Give every vehicle of a test
+    the same value."""
+    from mmatch.sim.scenario import EPISODE_S
+
+    return round(episode * EPISODE_S - time.time(), 3)
+
+
 def write_vehicle_cfg(path: Path, *, vid: str, role: str, listen: list[str], connect: list[str],
                       log_dir: Path | None, phase: float = 0.0, cavs: list[str] | None = None,
                       seed: int = 1, mode: str = "easy", extra: str = "",
-                      dev_dir: Path | None = None, ego: str = "") -> Path:
+                      dev_dir: Path | None = None, ego: str = "", time_offset: float = 0.0) -> Path:
     """A simulated vehicle's config; its dev keys live in `dev_dir` (default: beside the file,
-    shared by every vehicle of the test); `ego`: more lines of the [ego] table."""
+    shared by every vehicle of the test); `ego`: more lines of the [ego] table; `time_offset`:
+    sim.time_offset_s (see pinned_time_offset)."""
     def arr(xs: list[str]) -> str:
         return "[" + ", ".join(f'"{x}"' for x in xs) + "]"
 
@@ -34,6 +46,7 @@ seed = {seed}
 mode = "{mode}"
 rate_hz = 20.0
 phase_s = {phase}
+time_offset_s = {time_offset!r}
 [zenoh]
 mode = "peer"
 listen = {arr(listen)}
