@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres
+from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres, without_heading_prior
 from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, threshold
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
@@ -102,6 +102,14 @@ class Fuser:
         if other is None:
             return FusionResult("single", "no CAV frame", objects=own_objs)
         pred = self.tracker.predict(own, other)
+        if pred.manoeuvre:                  # a vehicle turning: its velocity tells no road direction
+            with without_heading_prior():
+                return self._fuse_predicted(own, other, context, pred, own_objs)
+        return self._fuse_predicted(own, other, context, pred, own_objs)
+
+    def _fuse_predicted(self, own: SharedFrame, other: SharedFrame, context: MatchContext | None,
+                        pred: Prediction, own_objs: np.ndarray) -> FusionResult:
+        """`fuse` once the track (if any) is predicted to this frame pair."""
         quick = pred.prior_T is not None and self.tracker.tracking_only(pred)
         no_vehicles = own.num_vehicles == 0 or other.num_vehicles == 0
         # a full search does not see the track, so its candidates are evidence of their own;
@@ -203,8 +211,10 @@ class Fuser:
         a = chosen[1] if chosen is not None else None
         sure = dict(confidence=confidence, covariance=cov, ambiguity=a.ambiguity if a is not None else float("nan"),
                     evidence=dict(a.features) if a is not None else {}, candidates=cands)
-        if confidence < self._threshold:
-            return FusionResult("no-estimate", reason or "track not sure", objects=own_objs, timings=timings,
+        young = hyp.hits < self.tracker.cfg.min_hits
+        if confidence < self._threshold or young:
+            reason = "unconfirmed" if young and confidence >= self._threshold else (reason or "track not sure")
+            return FusionResult("no-estimate", reason, objects=own_objs, timings=timings,
                                 refused_T=T, **sure)
         return FusionResult("fused", "" if hit else "tracked", T, pairs, merge_objects(own, other, T, pairs),
                             timings, **sure)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -118,6 +121,22 @@ def descriptor_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 MIN_SPEED_FOR_HEADING = 3.0
+_HEADING_PRIOR = contextvars.ContextVar("heading_prior", default=True)
+
+
+@contextlib.contextmanager
+def without_heading_prior() -> Iterator[None]:
+    """Within this block `heading_yaws` (and so every road-direction prior: the matchers' yaw
+    gate, the aligners' heading terms, the confidence features) gives None, as for a radar
+    standing still. For a frame pair in which a vehicle is turning (ego/track/predict.py
+    detects it): its heading lies along no road then, and a radar ahead of the rear axle
+    sees its own velocity swing sideways by yaw rate x lever arm (13 deg at 0.6 rad/s, 2 m,
+    5.4 m/s), so the velocity directions would pull the yaw the wrong way."""
+    token = _HEADING_PRIOR.set(False)
+    try:
+        yield
+    finally:
+        _HEADING_PRIOR.reset(token)
 
 
 def heading_yaws(own: SharedFrame, other: SharedFrame) -> np.ndarray | None:
@@ -125,10 +144,11 @@ def heading_yaws(own: SharedFrame, other: SharedFrame) -> np.ndarray | None:
 
     Vehicles drive along the road, and roads meet at right angles, so the two
     velocity directions differ by a multiple of 90 deg: yaw = ang(v_own) - ang(v_other)
-    + k * pi / 2. None when either radar stands still or has no ego-motion estimate.
+    + k * pi / 2. None when either radar stands still or has no ego-motion estimate, and
+    within `without_heading_prior`.
     """
     ve, vc = np.asarray(own.ego_velocity, float), np.asarray(other.ego_velocity, float)
-    if not (np.all(np.isfinite(ve)) and np.all(np.isfinite(vc))):
+    if not (_HEADING_PRIOR.get() and np.all(np.isfinite(ve)) and np.all(np.isfinite(vc))):
         return None
     if np.linalg.norm(ve) < MIN_SPEED_FOR_HEADING or np.linalg.norm(vc) < MIN_SPEED_FOR_HEADING:
         return None

@@ -111,7 +111,10 @@ def test_a_far_estimate_starts_a_rival_and_a_near_one_refines_the_track():
 def test_a_frame_without_vehicles_is_fused_from_the_track():
     w = World()
     fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0)))
-    first = fuser.fuse(w.frame("ego", 5.02, True), w.frame("cav", 5.0, True))
+    unconfirmed = fuser.fuse(w.frame("ego", 4.97, True), w.frame("cav", 4.95, True))
+    assert unconfirmed.status == "no-estimate" and unconfirmed.reason == "unconfirmed"  # one frame
+    assert rte_m(w.truth(4.97, 4.95), unconfirmed.refused_T) < 1.0
+    first = fuser.fuse(w.frame("ego", 5.02, True), w.frame("cav", 5.0, True))       # two agree
     assert first.status == "fused" and len(first.pairs) == 3
     assert rte_m(w.truth(5.02, 5.0), first.T_ego_cav) < 1.0
     later = fuser.fuse(w.frame("ego", 5.52, True), w.frame("cav", 5.5, False))   # the CAV sees no car
@@ -133,8 +136,45 @@ def test_full_searches_come_back_regularly_while_tracking():
         quick.append(fuser.tracker.tracking_only(fuser.tracker.predict(own, oth)))
         res = fuser.fuse(own, oth)
         truth = w.truth(t + 0.02, t)
+        if k == 0:                                               # published once a second frame agrees
+            assert res.status == "no-estimate" and res.reason == "unconfirmed"
+            continue
         assert res.status == "fused" and rte_m(truth, res.T_ego_cav) < 1.0 and rre_deg(truth, res.T_ego_cav) < 2.0
         assert len(res.pairs) == 3
     assert not quick[0] and any(quick)                           # the first frame searches
     runs = "".join("q" if q else "f" for q in quick)
     assert "qqq" not in runs                                     # never more than 2 tracking frames in a row
+
+
+def test_a_turning_radar_is_a_manoeuvre_that_searches_and_loosens_the_yaw_rate():
+    """A radar ahead of the rear axle sees its velocity swing sideways when its vehicle starts to
+    turn: the next frame searches globally, without the road-direction prior, and the turning
+    vehicle's yaw rate becomes uncertain; a straight drive with Doppler noise is no manoeuvre."""
+    from dataclasses import replace
+
+    from mmatch.ego.base import heading_yaws, without_heading_prior
+
+    w = World()
+    cfg = TrackConfig(max_age_s=2.0, full_search_every=10)
+    tr = Tracker(cfg)
+    rng = np.random.default_rng(3)
+    for k in range(4):                                           # straight, 0.1 m/s velocity noise
+        t = 1.0 + 0.05 * k
+        own = replace(w.frame("ego", t, True), ego_velocity=w.v_ego + rng.normal(0, 0.1, 2))
+        oth = replace(w.frame("cav", t, True), ego_velocity=w.v_cav + rng.normal(0, 0.1, 2))
+        pred = tr.predict(own, oth)
+        assert not pred.manoeuvre
+        _commit(tr, own, oth, w.truth(t, t), p=0.95)
+    assert tr.tracking_only(tr.predict(own, oth))
+    before = tr.track("cav").best().P[4, 4]
+    t = 1.2
+    turning = replace(w.frame("cav", t, True), ego_velocity=np.array([-1.2, 9.0]))   # 7.6 deg sideways
+    pred = tr.predict(w.frame("ego", t, True), turning)
+    assert pred.manoeuvre and not tr.tracking_only(pred)
+    best = pred.track.best()
+    assert best.P[4, 4] >= before + cfg.manoeuvre_yaw_rate_sigma ** 2 - 1e-9      # the CAV's yaw rate
+    assert best.P[3, 3] < cfg.manoeuvre_yaw_rate_sigma ** 2                       # not the Ego's
+    assert heading_yaws(w.frame("ego", t, True), turning) is not None
+    with without_heading_prior():
+        assert heading_yaws(w.frame("ego", t, True), turning) is None
+    assert heading_yaws(w.frame("ego", t, True), turning) is not None

@@ -63,7 +63,7 @@ class ConsensusConfig:
     score_low: float = 0.3               # detection scores map to confidence 0 ... 1 between these
     score_high: float = 0.8
     min_confidence: float = 0.25
-    prior_weight: float = 1.0            # agreement with the track's prediction (MatchContext.prior_T)
+    prior_weight: float = 0.0            # agreement with the track's prediction (MatchContext.prior_T)
     prior_sigma_m: float = 1.5
     prior_sigma_deg: float = 3.0
     observation: ObservationModel = ObservationModel()

@@ -26,6 +26,14 @@ class TrackConfig:
     """max_age_s: a track not updated for this long (either radar's clock) is dropped; 0: no
     tracking (every frame on its own). full_search_every: frames between full searches while
     tracking (and only while the best hypothesis is believed at least quick_belief); agree_m / agree_deg: two transforms this close agree; prior_belief: a best hypothesis at least this believed seeds the matcher;
+    min_hits: a hypothesis is published once this many frames have confirmed it (one
+    frame's confident mistake is not, two agreeing frames are);
+    manoeuvre_deg: a radar whose velocity direction in its own frame turned this far since the
+    last full search (while faster than manoeuvre_speed_mps) is changing its yaw rate (a radar
+    ahead of the rear axle sees its velocity swing sideways by yaw rate x lever arm); the
+    frame then searches globally and that vehicle's yaw rate is made uncertain by
+    manoeuvre_yaw_rate_sigma (rad/s): the constant-yaw-rate prediction no longer holds, and a
+    refinement seeded by it would follow it;
     filter: the pose filter's noise, gates and belief (ego/track/filter.py)."""
 
     max_age_s: float = 2.0
@@ -35,6 +43,10 @@ class TrackConfig:
     agree_m: float = 2.0
     agree_deg: float = 5.0
     prior_belief: float = 0.3
+    min_hits: int = 2
+    manoeuvre_deg: float = 3.0
+    manoeuvre_speed_mps: float = 2.0
+    manoeuvre_yaw_rate_sigma: float = 0.4
     filter: FilterConfig = field(default_factory=FilterConfig)
 
 
@@ -47,6 +59,7 @@ class Prediction:
     dt_own: float
     dt_other: float
     prior_T: np.ndarray | None
+    manoeuvre: bool = False
 
 
 class Tracker:
@@ -77,10 +90,25 @@ class Tracker:
         v_other = (tr.v_other + velocity_of(other)) / 2
         hyps = [predict_hypothesis(h, v_own, v_other, dt_own, dt_other, self.cfg.filter) for h in tr.hypotheses]
         moved = PoseTrack(hyps, float(own.stamp), float(other.stamp), velocity_of(own), velocity_of(other),
-                          tr.since_full, tr.frames)
+                          tr.since_full, tr.frames, dict(tr.extra))
+        turning = self._manoeuvres(moved)
+        for h in hyps:
+            for k in np.flatnonzero(turning):
+                h.P[3 + k, 3 + k] += self.cfg.manoeuvre_yaw_rate_sigma ** 2
         best = moved.best()
         prior = best.T if best is not None and best.belief >= self.cfg.prior_belief else None
-        return Prediction(moved, dt_own, dt_other, prior)
+        return Prediction(moved, dt_own, dt_other, prior, bool(turning.any()))
+
+    def _manoeuvres(self, track: PoseTrack) -> np.ndarray:
+        """(2,) bool: whether the Ego's / the CAV's radar velocity turned more than manoeuvre_deg
+        in its own frame since the reference the last full search left (track.extra["heading"])."""
+        ref = track.extra.get("heading")
+        now = _headings(track)
+        if ref is None:
+            return np.zeros(2, bool)
+        gap = np.degrees(np.abs((now - ref + np.pi) % (2 * np.pi) - np.pi))
+        fast = np.array([np.hypot(*track.v_own), np.hypot(*track.v_other)]) >= self.cfg.manoeuvre_speed_mps
+        return fast & np.isfinite(ref) & (gap > self.cfg.manoeuvre_deg)
 
     def agrees(self, T: np.ndarray, other_T: np.ndarray | None) -> bool:
         """Whether two transforms (4x4) lie within agree_m / agree_deg of each other."""
@@ -97,7 +125,7 @@ class Tracker:
         tracking frame fell in the track."""
         tr = pred.track
         best = tr.best() if tr is not None else None
-        return (best is not None and best.belief >= self.cfg.quick_belief
+        return (best is not None and best.belief >= self.cfg.quick_belief and not pred.manoeuvre
                 and 0 < tr.since_full < self.cfg.full_search_every)
 
     def commit(self, own: SharedFrame, other: SharedFrame, pred: Prediction, candidates: list[Candidate],
@@ -119,6 +147,7 @@ class Tracker:
         track.frames += 1
         if full_search:
             track.since_full = 1
+            track.extra["heading"] = _headings(track)
         elif hit and max((c.p for c in candidates), default=0.0) >= self.cfg.quick_fit:
             track.since_full += 1
         else:
@@ -142,3 +171,13 @@ class Tracker:
             self._tracks.clear()
         else:
             self._tracks.pop(sender, None)
+
+
+def _headings(track: PoseTrack) -> np.ndarray:
+    """(2,) direction (rad) of the Ego's and the CAV's radar velocity in its own frame (NaN when
+    slower than 0.5 m/s: no direction)."""
+    out = np.full(2, np.nan)
+    for k, v in enumerate((track.v_own, track.v_other)):
+        if np.hypot(*v) >= 0.5:
+            out[k] = np.arctan2(v[1], v[0])
+    return out
