@@ -234,9 +234,12 @@ def hypotheses(A: np.ndarray, B: np.ndarray, cand: np.ndarray, w: np.ndarray, ya
 
 
 def pair_mahalanobis(A: Observations, B: Observations, cand: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(H, C) Mahalanobis distance of each candidate pair (own i, other j) under each hypothesis (best estimates)."""
-    ca, Sa = A.centres[cand[:, 0]], A.cov[cand[:, 0]]
-    cb, Sb = B.centres[cand[:, 1]], B.cov[cand[:, 1]]
+    """(H, C) Mahalanobis distance of each candidate pair (own i, other j) under each hypothesis
+    (best estimates), in float32 as observations._maha_sq."""
+    f = np.float32
+    ca, Sa = A.centres[cand[:, 0]].astype(f), A.cov[cand[:, 0]].astype(f)
+    cb, Sb = B.centres[cand[:, 1]].astype(f), B.cov[cand[:, 1]].astype(f)
+    R, t = np.asarray(R, f), np.asarray(t, f)
     c, s = R[:, 0, 0][:, None], R[:, 1, 0][:, None]                            # (H, 1)
     bx, by = cb[None, :, 0], cb[None, :, 1]
     dx = ca[None, :, 0] - (c * bx - s * by + t[:, 0:1])
@@ -246,8 +249,8 @@ def pair_mahalanobis(A: Observations, B: Observations, cand: np.ndarray, R: np.n
     s00 = Sa[None, :, 0, 0] + a * cc - 2 * b * csn + d * ss
     s01 = Sa[None, :, 0, 1] + (a - d) * csn + b * (cc - ss)
     s11 = Sa[None, :, 1, 1] + a * ss + 2 * b * csn + d * cc
-    det = np.maximum(s00 * s11 - s01 * s01, 1e-12)
-    return np.sqrt(np.maximum((s11 * dx * dx - 2 * s01 * dx * dy + s00 * dy * dy) / det, 0.0))
+    det = np.maximum(s00 * s11 - s01 * s01, f(1e-12))
+    return np.sqrt(np.maximum((s11 * dx * dx - 2 * s01 * dx * dy + s00 * dy * dy) / det, f(0.0)))
 
 
 def coarse_scores(A: Observations, B: Observations, cand: np.ndarray, w: np.ndarray, R: np.ndarray,
