@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field, replace
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres, without_heading_prior
 from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, threshold
+from mmatch.ego.observations import observations_shared
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
@@ -102,10 +104,9 @@ class Fuser:
         if other is None:
             return FusionResult("single", "no CAV frame", objects=own_objs)
         pred = self.tracker.predict(own, other)
-        if pred.manoeuvre:                  # a vehicle turning: its velocity tells no road direction
-            with without_heading_prior():
-                return self._fuse_predicted(own, other, context, pred, own_objs)
-        return self._fuse_predicted(own, other, context, pred, own_objs)
+        with observations_shared(), (without_heading_prior() if pred.manoeuvre else contextlib.nullcontext()):
+            # a vehicle turning (manoeuvre): its velocity tells no road direction
+            return self._fuse_predicted(own, other, context, pred, own_objs)
 
     def _fuse_predicted(self, own: SharedFrame, other: SharedFrame, context: MatchContext | None,
                         pred: Prediction, own_objs: np.ndarray) -> FusionResult:
