@@ -158,3 +158,19 @@ def test_a_detector_with_lower_scores_overall_still_gets_its_pairs(hard_dir):
                                      views[1].vehicle_box_index[m.pairs[:, 1]]])
             found[scale] += pair_counts(pairs, s.gt_pairs)[0]
     assert found[0.45] >= 0.8 * found[1.0] > 0
+
+
+def test_one_fusion_observes_each_frame_once_and_the_shared_arrays_cannot_be_changed():
+    from dataclasses import replace
+
+    from mmatch.ego.observations import observations_shared
+
+    f = _frame([[0.0, 30.0], None], np.array([[0.0, 31.0], [30.0, 0.0]]))
+    assert observe(f) is not observe(f)                             # outside: computed each time
+    with observations_shared():
+        a = observe(f)
+        assert observe(f) is a and observe(f, ObservationModel(camera_bearing=False)) is not a
+        assert observe(replace(f)) is not a                          # another frame object
+        with pytest.raises(ValueError):
+            a.centres[0, 0] = 1.0
+    assert observe(f) is not a
