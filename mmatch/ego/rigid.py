@@ -87,3 +87,21 @@ def icp2d(src: np.ndarray, dst: np.ndarray, R: np.ndarray, t: np.ndarray, max_di
 def yaw_of(T: np.ndarray) -> float:
     """Yaw (rad) of a 4x4 or 2x2 rotation."""
     return float(np.arctan2(T[1, 0], T[0, 0]))
+
+
+def distinct_best(R: np.ndarray, t: np.ndarray, order: np.ndarray, n: int, distinct_m: float,
+                  distinct_deg: float) -> np.ndarray:
+    """Indices of up to n planar transforms R (H, 2, 2), t (H, 2), taken in `order` (best first),
+    skipping any within distinct_m (m) and distinct_deg (deg) of one already taken."""
+    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    chosen: list[int] = []
+    for h in order:
+        if len(chosen) >= n:
+            break
+        if chosen:
+            c = np.asarray(chosen)
+            dy = np.abs((yaw[c] - yaw[h] + np.pi) % (2 * np.pi) - np.pi)
+            if np.any((np.linalg.norm(t[c] - t[h], axis=1) < distinct_m) & (dy < np.radians(distinct_deg))):
+                continue
+        chosen.append(int(h))
+    return np.asarray(chosen, int)

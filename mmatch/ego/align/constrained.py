@@ -21,7 +21,7 @@ from mmatch.ego.base import AlignResult, MatchResult, heading_yaws
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
-from mmatch.ego.rigid import kabsch2d, se2_to_matrix
+from mmatch.ego.rigid import distinct_best, kabsch2d, se2_to_matrix
 from mmatch.shared import SharedFrame
 
 
@@ -110,18 +110,8 @@ class ConstrainedAligner:
 
 def _distinct(R: np.ndarray, t: np.ndarray, score: np.ndarray, cfg: ConstrainedConfig) -> np.ndarray:
     """Indices of the best-scored results, skipping those within distinct_m / distinct_deg of a better one."""
-    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
-    chosen: list[int] = []
-    for h in np.argsort(-score, kind="stable"):
-        if len(chosen) >= cfg.max_candidates:
-            break
-        if chosen:
-            c = np.asarray(chosen)
-            dy = np.abs((yaw[c] - yaw[h] + np.pi) % (2 * np.pi) - np.pi)
-            if np.any((np.linalg.norm(t[c] - t[h], axis=1) < cfg.distinct_m) & (dy < np.radians(cfg.distinct_deg))):
-                continue
-        chosen.append(int(h))
-    return np.asarray(chosen, int)
+    return distinct_best(R, t, np.argsort(-score, kind="stable"), cfg.max_candidates, cfg.distinct_m,
+                         cfg.distinct_deg)
 
 
 def _finite(R: np.ndarray, t: np.ndarray) -> np.ndarray:

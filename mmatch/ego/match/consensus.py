@@ -19,7 +19,7 @@ from mmatch.ego.base import Hypotheses, MatchContext, MatchResult, heading_yaws,
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
-from mmatch.ego.rigid import se2_to_matrix
+from mmatch.ego.rigid import distinct_best, se2_to_matrix
 from mmatch.shared import SharedFrame
 
 
@@ -224,19 +224,7 @@ def _single_pair_hypotheses(A, B, cand, yaws):
 
 def _distinct_best(R, t, score, cfg, n):
     """Indices of the best n hypotheses, skipping near-duplicates of better ones."""
-    order = np.argsort(-score)
-    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
-    chosen: list[int] = []
-    for h in order:
-        if len(chosen) >= n:
-            break
-        if chosen:
-            c = np.asarray(chosen)
-            dy = np.abs((yaw[c] - yaw[h] + np.pi) % (2 * np.pi) - np.pi)
-            if np.any((np.linalg.norm(t[c] - t[h], axis=1) < cfg.distinct_m) & (dy < np.radians(cfg.distinct_deg))):
-                continue
-        chosen.append(int(h))
-    return np.asarray(chosen, int)
+    return distinct_best(R, t, np.argsort(-score), n, cfg.distinct_m, cfg.distinct_deg)
 
 
 def _candidates(D: np.ndarray, k: int, gate: float) -> np.ndarray:
