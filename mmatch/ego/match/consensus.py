@@ -63,7 +63,9 @@ class ConsensusConfig:
     score_low: float = 0.3               # detection scores map to confidence 0 ... 1 between these
     score_high: float = 0.8
     min_confidence: float = 0.25
-    prior_weight: float = 0.0            # agreement with the track's prediction (MatchContext.prior_T)
+    prior_weight: float = 0.0            # agreement with the track's prediction (MatchContext.prior_T);
+                                         # 0: the pose filter weighs the prediction, a refinement
+                                         # that also scored it would confirm it (ego/track/)
     prior_sigma_m: float = 1.5
     prior_sigma_deg: float = 3.0
     observation: ObservationModel = ObservationModel()
@@ -116,7 +118,7 @@ class ConsensusMatcher:
         Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
         total = _vehicle_scores(A, B, alike_of(Rr), Rr, tr, cfg) \
             + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
-        if prior is not None:
+        if prior is not None and cfg.prior_weight:
             total = total + cfg.prior_weight * _prior_agreement(Rr, tr, prior, cfg)
         best = int(np.argmax(total))
         R_b, t_b = Rr[best], tr[best]

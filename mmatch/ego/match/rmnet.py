@@ -158,7 +158,7 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
             Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
             total = cs._vehicle_scores(A, B, alike_of(Rr), Rr, tr, ccfg) \
                 + ccfg.background_weight * cs._background_scores(bg_own, bg_other, Rr, tr, ccfg, tree)
-            if prior is not None:
+            if prior is not None and ccfg.prior_weight:
                 total = total + ccfg.prior_weight * cs._prior_agreement(Rr, tr, prior, ccfg)
             k = int(np.argmax(total))
             R_b, t_b = Rr[k], tr[k]
