@@ -85,6 +85,7 @@ class SceneRadar(RadarSource):
         start = cfg.scene.start if cfg.scene.start > 0 else time.time() + STARTUP_S
         self._offset = start - self.t0                       # wall time - drive time
         self._next = 0
+        self._due: Any = None                                # files[_next] once read, until delivered
         self.frames = 0
         self.rejected = 0
         self._closed = threading.Event()
@@ -99,14 +100,15 @@ class SceneRadar(RadarSource):
         from mmatch.scene_io import load_scene
 
         while self._next < len(self.files):
-            path = self.files[self._next]
-            try:
-                scene = load_scene(path)
-            except SceneFormatError as exc:
-                log.warning("scene source: %s; skipped", exc)
-                self.rejected += 1
-                self._next += 1
-                continue
+            if self._due is None:
+                try:
+                    self._due = load_scene(self.files[self._next])
+                except SceneFormatError as exc:
+                    log.warning("scene source: %s; skipped", exc)
+                    self.rejected += 1
+                    self._next += 1
+                    continue
+            scene = self._due
             side = getattr(scene, self.view)
             wait = float(side.stamp) - self.cfg.scene.lead_s - self.clock()
             if wait > timeout:
@@ -115,6 +117,7 @@ class SceneRadar(RadarSource):
             if wait > 0:
                 self._closed.wait(wait)
             self._next += 1
+            self._due = None
             self.frames += 1
             det = Detections(boxes=np.asarray(side.boxes, np.float32), features=np.asarray(side.features, np.float32),
                              stamp=float(side.stamp))
