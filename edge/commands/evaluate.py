@@ -20,12 +20,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="which vehicles both views share")
     p.add_argument("--aligner", default=DEFAULT_ALIGNER, choices=sorted(ALIGNERS),
                    help="the transform between the two radars")
-    p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
-                   help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
     p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
-    p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
-                   help="factor on appearance-descriptor distances; auto: measured on the folder "
-                        "without labels; 1 (default): as the files have them")
+    add_scene_options(p)
     p.add_argument("--sequences", action="store_true",
                    help="the files are sequences (meta.sequence / meta.frame): run each through one tracking "
                         "fuser in frame order, as the vehicle service does, beside the per-frame mode "
@@ -33,6 +29,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--track-max-age", type=_nonneg, default=2.0, metavar="S",
                    help="with --sequences: the tracking fuser's track age limit, s (the service's "
                         "ego.track_max_age_s)")
+
+
+def add_scene_options(p: argparse.ArgumentParser) -> None:
+    """The options of how scene files are run that `mmatch eval` and `mmatch report` share:
+    --cav, --descriptor-scale, --confidence-threshold."""
+    p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
+                   help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
+    p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
+                   help="factor on appearance-descriptor distances; auto: measured on the folder "
+                        "without labels; 1: as the files have them")
     p.add_argument("--confidence-threshold", type=_probability, default=None, metavar="P",
                    help="estimates less sure than P (0-1) are 'no estimate'; default: the fitted model's "
                         "threshold; 0 emits every estimate")

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from mmatch.edge.commands.args import positive_int
-from mmatch.edge.commands.evaluate import _probability, _scale
+from mmatch.edge.commands.evaluate import add_scene_options
 
 HELP = "compare MMatch, its ablation and point-cloud peers on a folder of scene files (tables, plots)"
 
@@ -20,15 +20,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated method keys or MATCHER+ALIGNER specs; keys: "
                         + ", ".join(m.key for m in METHODS) + " (default: every registered one; a peer "
                         "whose library is missing is skipped with a message)")
-    p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
-                   help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
     p.add_argument("--jobs", type=positive_int, default=2, help="worker processes")
-    p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
-                   help="as mmatch eval: factor on appearance-descriptor distances; auto: measured on the "
-                        "folder without labels; 1: as the files have them")
-    p.add_argument("--confidence-threshold", type=_probability, default=None, metavar="P",
-                   help="as mmatch eval: estimates less sure than P (0-1) are 'no estimate'; default: the "
-                        "fitted model's threshold; 0 emits every estimate")
+    add_scene_options(p)
     p.add_argument("--no-plots", action="store_true", help="tables and JSON only (no matplotlib needed)")
 
 
