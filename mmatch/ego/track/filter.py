@@ -51,10 +51,12 @@ class FilterConfig:
     velocity_sigma_mps: float = 0.15        # each radar's Doppler velocity error, per axis
     position_process_mps: float = 0.10      # unmodelled relative motion, m per sqrt(s)
     yaw_process_dps: float = 0.3            # unmodelled relative rotation, deg per sqrt(s)
-    yaw_accel_sigma: float = 0.1            # random walk of each yaw rate, rad/s per sqrt(s); the
-                                            # onset of a turn is left to the manoeuvre test
-                                            # (ego/track/predict.py), which widens it by 0.4 rad/s
-    yaw_rate_sigma0: float = 0.1            # a new hypothesis' yaw-rate uncertainty, rad/s
+    yaw_accel_sigma: float = 0.02           # random walk of each yaw rate, rad/s per sqrt(s): vehicles
+                                            # mostly hold their yaw rate; a sharp turn's onset is left
+                                            # to the manoeuvre test (ego/track/predict.py), which
+                                            # widens it by 0.4 rad/s; an unnoticed 0.25 rad/s curve
+                                            # costs at most 3.4 deg for a second (0.1: 2.2 deg)
+    yaw_rate_sigma0: float = 0.02           # a new hypothesis' yaw-rate uncertainty, rad/s
     floor_m: float = 0.05                   # measurement noise floor, m
     floor_deg: float = 0.2                  # measurement noise floor, deg
     gate_chi2: float = CHI2_3_999
