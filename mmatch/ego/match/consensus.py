@@ -49,6 +49,10 @@ class ConsensusConfig:
     refine_hypotheses: int = 8          # best coarse hypotheses refined and rescored
     refine_with_prior: int = 4          # the same when a track predicts the transform (prior + 3)
     quick_iterations: int = 3           # refinement rounds of a tracking frame (prediction only)
+    quick_background_weight: float = 10.0  # all background terms of a tracking frame's refinement
+                                         # together weigh this many vehicles (refine.bg_weight_total
+                                         # of a full search): near a good prediction the background
+                                         # correspondences are right, so they can carry the fit
     distinct_m: float = 1.5              # hypotheses closer than this (and distinct_deg) count as one
     distinct_deg: float = 3.0
     yaw_gate_deg: float = 10.0           # hypotheses this far from every velocity-heading yaw are dropped
@@ -70,6 +74,11 @@ class ConsensusConfig:
     prior_sigma_deg: float = 3.0
     observation: ObservationModel = ObservationModel()
     refine: RefineConfig = RefineConfig()
+
+    def tracking_refine(self) -> RefineConfig:
+        """The refinement of a tracking frame (MatchContext.prior_only): fewer rounds, more
+        background weight."""
+        return replace(self.refine, iterations=self.quick_iterations, bg_weight_total=self.quick_background_weight)
 
 
 class ConsensusMatcher:
@@ -112,8 +121,7 @@ class ConsensusMatcher:
         top = _distinct_best(R, t, veh_score, cfg, n_refine)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
-        rcfg = replace(cfg.refine, iterations=cfg.quick_iterations) if ctx.prior_only and prior is not None \
-            else cfg.refine
+        rcfg = cfg.tracking_refine() if ctx.prior_only and prior is not None else cfg.refine
         R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree)
         Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
         total = _vehicle_scores(A, B, alike_of(Rr), Rr, tr, cfg) \

@@ -150,8 +150,7 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
         top = cs._distinct_best(R, t, coarse, ccfg, n_refine)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
-        rcfg = replace(ccfg.refine, iterations=ccfg.quick_iterations) if ctx.prior_only and prior is not None \
-            else ccfg.refine
+        rcfg = ccfg.tracking_refine() if ctx.prior_only and prior is not None else ccfg.refine
         allowed = W >= cfg.min_prob if candidates is None else None
         R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree, allowed)
         if time.thread_time() < deadline:
