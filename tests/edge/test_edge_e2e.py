@@ -131,15 +131,19 @@ def test_ego_fuses_95_percent_of_its_frames_within_50ms(live):
     assert expected >= 0.9 * WINDOW_S * RATE
     # a result for every frame: the CAV frame paired and either a transform estimated (from
     # matching, or from the track when a frame has nothing to match) or "no estimate" with the
-    # reason when the Ego is not sure (issue 11), published within 50 ms of the own capture
+    # reason when the Ego is not sure (issue 11), published within 50 ms of the own capture:
+    # the Ego's own capture-to-publish time (latency_ms), not the watcher's arrival time, which
+    # adds the watcher's own scheduling in this test process
     good = [m for t, m in steady if m["status"] in ("fused", "no-estimate") and m["cavs"]
-            and (t - m["stamp"]) <= 0.050]
+            and m["latency_ms"] <= 50.0]
     fused = [m for m in good if m["status"] == "fused"]
     assert len(fused) >= 0.6 * len(good)
-    lat = np.array([(t - m["stamp"]) * 1e3 for t, m in steady])
+    lat = np.array([m["latency_ms"] for _, m in steady])
+    arrival = np.array([(t - m["stamp"]) * 1e3 for t, m in steady])
     print(f"steady: {len(steady)} results / {expected} frames, fused+<=50ms {len(good)}, "
           f"status fused {sum(m['status'] == 'fused' for _, m in steady)}, "
-          f"latency ms median {np.median(lat):.1f} p95 {np.percentile(lat, 95):.1f} max {lat.max():.1f}")
+          f"latency ms median {np.median(lat):.1f} p95 {np.percentile(lat, 95):.1f} max {lat.max():.1f}, "
+          f"arrival ms median {np.median(arrival):.1f} p95 {np.percentile(arrival, 95):.1f}")
     assert len(good) >= 0.95 * expected
     # the result carries what was fused with what
     m = fused[0]
