@@ -55,7 +55,8 @@ class FilterConfig:
                                             # mostly hold their yaw rate; a sharp turn's onset is left
                                             # to the manoeuvre test (ego/track/predict.py), which
                                             # widens it by 0.4 rad/s; an unnoticed 0.25 rad/s curve
-                                            # costs at most 3.4 deg for a second (0.1: 2.2 deg)
+                                            # peaks at 2.3-4.1 deg for about a second (0.1: about
+                                            # 2.2; tests/track/test_filter.py)
     yaw_rate_sigma0: float = 0.02           # a new hypothesis' yaw-rate uncertainty, rad/s
     floor_m: float = 0.05                   # measurement noise floor, m
     floor_deg: float = 0.2                  # measurement noise floor, deg
