@@ -101,6 +101,8 @@ class SimSection:
                                  doc="this vehicle's clock error: stamps = true capture time + this, s")
     covisible: int = _opt(2, lo=0, hi=20,
                           doc="redraw each 10 s world until both cameras see this many common vehicles")
+    render_process: bool = _opt(True, doc="render frames in a child process (as a sensor of its own) "
+                                          "rather than in a thread of the vehicle process")
 
 
 @dataclass(frozen=True)

@@ -233,6 +233,7 @@ class Node:
     def process(self, frame: SensorFrame) -> dict | None:
         """Run one own sensor frame through the pipeline; the fused message for an Ego."""
         self.counters.frames += 1
+        lag = {"start": (self.clock() - frame.stamp) * 1e3}
         own, timings = self.pipeline.process_view(
             frame.points, frame.boxes, frame.features, self.camera, self.radar_height, frame.stamp,
             sender=self.id, seq=frame.seq)
@@ -253,8 +254,10 @@ class Node:
                     self.recorder.write(topic, record, stamp=frame.stamp)
         if not self.cfg.is_ego:
             return None
+        lag["processed"] = (self.clock() - frame.stamp) * 1e3
         choice = self._pair(frame)
-        return self._fuse(frame, own, timings, choice)
+        lag["paired"] = (self.clock() - frame.stamp) * 1e3
+        return self._fuse(frame, own, {**timings, **{f"lag:{k}": v for k, v in lag.items()}}, choice)
 
     def _wanted(self, stamp: float) -> bool:
         """True while some live CAV may still deliver a frame closer to `stamp`."""

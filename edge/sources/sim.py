@@ -4,7 +4,9 @@ Frames come at `sim.rate_hz` on the grid k / rate + `sim.phase_s` of the vehicle
 clock (time.time() + `sim.clock_offset_s`, its synchronisation error); every process that uses the same seed and mode sees the same world, each
 from its own vehicle (`sim.view`). A frame is rendered just ahead of its capture time
 and delivered at it, as a sensor delivers what it captured. The camera of the same vehicle
-gets the detections of the same observation.
+gets the detections of the same observation. With `sim.render_process` (default) a child
+process renders (mmatch/sim/renderd.py): like a real sensor, the simulated one then does
+not hold the vehicle process's interpreter lock while its frame loop works.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import time
 from mmatch.edge.config import VehicleConfig
 from mmatch.edge.sources.base import CameraSource, RadarSource
 from mmatch.edge.transport import KeepNewest
+from mmatch.sim.renderd import RenderError, RenderProcess
 from mmatch.types import CameraModel, Detections, RadarFrame
 
 log = logging.getLogger(__name__)
@@ -44,6 +47,10 @@ class SimRadar(RadarSource):
         self._render_s = 0.015  # running estimate of one observation's render time, s
         self.camera_feed: KeepNewest[Detections] | None = None
         self._closed = False
+        self.render_fallbacks = 0
+        self._renderer: RenderProcess | None = None
+        if cfg.sim.render_process:
+            self._renderer = RenderProcess(cfg.sim.seed, cfg.sim.mode, cfg.sim.covisible, self.view)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -51,7 +58,22 @@ class SimRadar(RadarSource):
         from mmatch.sim.scenario import EPISODE_S
 
         t = self._clock() + self.cfg.sim.time_offset_s
-        self.scenario.world(int(t // EPISODE_S))
+        if self._renderer is not None:
+            self._render(t, timeout_s=60.0)
+        else:
+            self.scenario.world(int(t // EPISODE_S))
+
+    def _render(self, t: float, timeout_s: float = 5.0):
+        """The observation at scenario time t, from the render process while it answers."""
+        if self._renderer is not None:
+            try:
+                return self._renderer.observe(t, timeout_s)
+            except RenderError as exc:
+                self.render_fallbacks += 1
+                log.warning("simulated %s sensor: %s; rendering in this process from now on", self.view, exc)
+                self._renderer.close()
+                self._renderer = None
+        return self.scenario.observe(self.view, t)
 
     @property
     def camera(self) -> CameraModel:
@@ -85,7 +107,7 @@ class SimRadar(RadarSource):
             self._sleep(t - lead - now)
         r0 = time.perf_counter()
         # captured at true time t - clock_offset, stamped on the vehicle's own clock
-        obs = self.scenario.observe(self.view, t - self.cfg.sim.clock_offset_s + self.cfg.sim.time_offset_s)
+        obs = self._render(t - self.cfg.sim.clock_offset_s + self.cfg.sim.time_offset_s)
         self._render_s = 0.8 * self._render_s + 0.2 * (time.perf_counter() - r0)
         wait = t - self._own_clock()
         if wait > 0:
@@ -98,10 +120,13 @@ class SimRadar(RadarSource):
                           host_time=self._own_clock())
 
     def counters(self) -> dict[str, int]:
-        return {"frames": self._frame_number, "late_skips": self.skipped}
+        return {"frames": self._frame_number, "late_skips": self.skipped,
+                "render_fallbacks": self.render_fallbacks}
 
     def close(self) -> None:
         self._closed = True
+        if self._renderer is not None:
+            self._renderer.close()
         self.scenario.close()
 
 

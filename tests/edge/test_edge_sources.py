@@ -185,7 +185,8 @@ def test_edge_bench_quick_numbers():
 
 def test_sim_vehicle_clock_offset_shifts_stamps_not_the_world():
     seen = []
-    cfg = config.from_dict({"vehicle": {"role": "cav"}, "sim": {"clock_offset_s": 0.3, "mode": "easy"}})
+    cfg = config.from_dict({"vehicle": {"role": "cav"}, "sim": {"clock_offset_s": 0.3, "mode": "easy",
+                                                                  "render_process": False}})
     fake_now = [5000.0]
     radar = SimRadar(cfg, clock=lambda: fake_now[0], sleep=lambda dt: fake_now.__setitem__(0, fake_now[0] + dt))
     real = radar.scenario.observe
@@ -195,3 +196,27 @@ def test_sim_vehicle_clock_offset_shifts_stamps_not_the_world():
         f = radar.read(0.2)
     assert f.stamp == pytest.approx(seen[0] + 0.3)  # own clock runs 0.3 s ahead of true time
     assert f.stamp == pytest.approx(round(f.stamp / 0.05) * 0.05)  # on its own 20 Hz grid
+
+
+def test_render_process_gives_the_in_process_frames_and_falls_back_when_it_dies():
+    """The child renders exactly what the vehicle's own process would; killed, the sensor
+    renders itself from the next frame on (counted), without losing a frame."""
+    from mmatch.sim.scenario import make_scenario
+
+    cfg = config.from_dict({"vehicle": {"role": "ego"}, "sim": {"mode": "easy", "seed": 3}})
+    fake_now = [7000.0]
+    radar = SimRadar(cfg, clock=lambda: fake_now[0], sleep=lambda dt: fake_now.__setitem__(0, fake_now[0] + dt))
+    assert radar._renderer is not None
+    here = make_scenario(3, "easy", covisible=cfg.sim.covisible)
+    got = [radar.read(1.0) for _ in range(3)]
+    for f in got:
+        want = here.observe("ego", f.stamp)
+        assert np.array_equal(f.points, want.points)
+    radar._renderer._proc.kill()
+    radar._renderer._proc.wait()
+    after = [radar.read(1.0) for _ in range(2)]
+    assert all(f is not None for f in after)
+    assert np.array_equal(after[0].points, here.observe("ego", after[0].stamp).points)
+    assert radar.counters()["render_fallbacks"] == 1
+    radar.close()
+    radar.close()
