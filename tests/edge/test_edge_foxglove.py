@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from edge_proc import pinned_time_offset
 from netutil import free_port
 
 RUN_S = 12.0
@@ -34,10 +35,12 @@ def sim_logs(tmp_path_factory) -> dict[str, Path]:
     ep = f"tcp/127.0.0.1:{free_port()}"  # the examples' 7460, moved off so parallel runs never meet
     # the live-only frame budget skips a CAV on a starved machine, a wall-clock decision no
     # replay repeats: lifted here, where the log itself is under test
+    # the world of the e2e tests (left to the wall clock, some 10 s worlds give nothing to fuse)
+    world = f"sim.time_offset_s={pinned_time_offset(3)!r}"
     ego = mmatch(["run", "-c", "vehicle-ego-sim.toml", "--log-dir", "logs/ego1", "--duration", str(RUN_S),
-                  "--set", f'zenoh.listen=["{ep}"]', "--set", "ego.frame_budget_s=10.0"], work)
+                  "--set", f'zenoh.listen=["{ep}"]', "--set", "ego.frame_budget_s=10.0", "--set", world], work)
     cav = mmatch(["run", "-c", "vehicle-cav-sim.toml", "--log-dir", "logs/cav1", "--duration", str(RUN_S - 2),
-                  "--set", f'zenoh.connect=["{ep}"]'], work)
+                  "--set", f'zenoh.connect=["{ep}"]', "--set", world], work)
     try:
         out_cav, _ = cav.communicate(timeout=RUN_S + 60)
         out_ego, _ = ego.communicate(timeout=RUN_S + 60)
