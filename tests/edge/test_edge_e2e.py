@@ -26,7 +26,9 @@ pytestmark = pytest.mark.slow
 
 RATE = 20.0
 WINDOW_S = 6.0
-EPISODE = 3  # the worlds of seed 1 easy the vehicles drive (episodes 3-5; in 0 few are co-visible)
+EPISODE = 12  # the worlds of seed 1 easy the vehicles drive (12-14; 12 and 13 fuse 96 and 100 % of
+# their frames offline, where 4, the one after the 3 used before, fuses 6 %: a window crossing
+# into it measured the world, not the service)
 
 
 

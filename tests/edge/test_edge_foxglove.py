@@ -36,7 +36,7 @@ def sim_logs(tmp_path_factory) -> dict[str, Path]:
     # the live-only frame budget skips a CAV on a starved machine, a wall-clock decision no
     # replay repeats: lifted here, where the log itself is under test
     # the world of the e2e tests (left to the wall clock, some 10 s worlds give nothing to fuse)
-    world = f"sim.time_offset_s={pinned_time_offset(3)!r}"
+    world = f"sim.time_offset_s={pinned_time_offset(12)!r}"
     ego = mmatch(["run", "-c", "vehicle-ego-sim.toml", "--log-dir", "logs/ego1", "--duration", str(RUN_S),
                   "--set", f'zenoh.listen=["{ep}"]', "--set", "ego.frame_budget_s=10.0", "--set", world], work)
     cav = mmatch(["run", "-c", "vehicle-cav-sim.toml", "--log-dir", "logs/cav1", "--duration", str(RUN_S - 2),
