@@ -82,15 +82,18 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
         CB = np.stack([B.centres, B.cam_centres])
         SB = np.stack([B.cov, B.cam_cov])
     for it in range(cfg.iterations):
-        Rm = _rots(yaw)                                           # (H, 2, 2)
-        Hm = np.zeros((H_n, 3, 3))
-        g = np.zeros((H_n, 3))
+        # only the hypotheses still moving are worked on (each one's fit is its own)
+        idx = np.flatnonzero(active)
+        y_a, t_a, n_a = yaw[idx], t[idx], len(idx)
+        Rm = _rots(y_a)                                           # (h, 2, 2)
+        Hm = np.zeros((n_a, 3, 3))
+        g = np.zeros((n_a, 3))
         if len(A.centres) and len(B.centres):
-            dm, mode = mahalanobis(A, B, Rm, t, with_modes=True)
+            dm, mode = mahalanobis(A, B, Rm, t_a, with_modes=True)
             dm = np.where(ok_pair[None], dm, np.inf)
             j = dm.argmin(axis=2)                                 # (H, Va)
             i = np.broadcast_to(np.arange(dm.shape[1]), j.shape)
-            hh = np.broadcast_to(np.arange(H_n)[:, None], j.shape)
+            hh = np.broadcast_to(np.arange(n_a)[:, None], j.shape)
             back = dm.argmin(axis=1)                              # (H, Vb)
             mutual = (np.take_along_axis(back, j, axis=1) == i) & (dm[hh, i, j] < cfg.vehicle_gate)
             h_, a_, b_ = hh[mutual], i[mutual], j[mutual]
@@ -99,7 +102,7 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
                 ca, Sa = CA[m_ // 2, a_], SA[m_ // 2, a_]
                 cb, Sb = CB[m_ % 2, b_], SB[m_ % 2, b_]
                 Rk = Rm[h_]
-                r = ca - (np.einsum("kij,kj->ki", Rk, cb) + t[h_])
+                r = ca - (np.einsum("kij,kj->ki", Rk, cb) + t_a[h_])
                 dr = -np.einsum("kij,kj->ki", Rk, np.column_stack([-cb[:, 1], cb[:, 0]]))
                 J = np.concatenate([dr[:, :, None], np.broadcast_to(-np.eye(2), (len(h_), 2, 2))], axis=2)
                 S = Sa + Rk @ Sb @ Rk.transpose(0, 2, 1)
@@ -110,13 +113,13 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
                 g[hs] += np.add.reduceat((JtW @ r[:, :, None])[..., 0], first, axis=0)
         if use_bg:
             gate = cfg.bg_gate_start_m + (cfg.bg_gate_end_m - cfg.bg_gate_start_m) * it / max(cfg.iterations - 1, 1)
-            moved = np.einsum("hij,nj->hni", Rm, bg_other) + t[:, None]          # (H, N, 2)
+            moved = np.einsum("hij,nj->hni", Rm, bg_other) + t_a[:, None]        # (h, N, 2)
             d, k = tree.query(moved.reshape(-1, 2), distance_upper_bound=gate)
-            d, k = d.reshape(H_n, -1), k.reshape(H_n, -1)
+            d, k = d.reshape(n_a, -1), k.reshape(n_a, -1)
             ok = np.isfinite(d)
             cnt = ok.sum(axis=1)
             srt = np.sort(np.where(ok, d, np.inf), axis=1)
-            cut = srt[np.arange(H_n), np.clip(np.ceil(cfg.bg_trim * cnt).astype(int) - 1, 0, None)]
+            cut = srt[np.arange(n_a), np.clip(np.ceil(cfg.bg_trim * cnt).astype(int) - 1, 0, None)]
             ok &= (d <= cut[:, None]) & (cnt[:, None] >= 3)
             q = tree.data[np.where(ok, k, 0)]
             r = np.where(ok[..., None], q - moved, 0.0)                          # (H, N, 2)
@@ -134,21 +137,21 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
             g[:, 1] -= w * r[..., 0].sum(axis=1)
             g[:, 2] -= w * r[..., 1].sum(axis=1)
         if yaws is not None:
-            gap = (yaw[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi
-            near = gap[np.arange(H_n), np.abs(gap).argmin(axis=1)]
+            gap = (y_a[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi
+            near = gap[np.arange(n_a), np.abs(gap).argmin(axis=1)]
             on = np.abs(near) < np.radians(cfg.heading_gate_deg)
             wy = np.radians(cfg.heading_sigma_deg) ** -2
             Hm[:, 0, 0] += wy * on
             g[:, 0] += wy * near * on
         det = np.linalg.det(Hm)
-        solvable = active & (det > 1e-9) & (Hm[:, 1, 1] > 0)
+        solvable = (det > 1e-9) & (Hm[:, 1, 1] > 0)
         if not solvable.any():
             break
-        step = np.zeros((H_n, 3))
+        step = np.zeros((n_a, 3))
         step[solvable] = np.linalg.solve(Hm[solvable], -g[solvable][..., None])[..., 0]
-        active = solvable & (np.abs(step).max(axis=1) >= 1e-4)
-        yaw = yaw + step[:, 0]
-        t = t + step[:, 1:]
+        active[idx] = solvable & (np.abs(step).max(axis=1) >= 1e-4)
+        yaw[idx] = y_a + step[:, 0]
+        t[idx] = t_a + step[:, 1:]
         if not active.any():
             break
     return _rots(yaw), t
