@@ -50,7 +50,11 @@ class SimRadar(RadarSource):
         self.render_fallbacks = 0
         self._renderer: RenderProcess | None = None
         if cfg.sim.render_process:
-            self._renderer = RenderProcess(cfg.sim.seed, cfg.sim.mode, cfg.sim.covisible, self.view)
+            try:
+                self._renderer = RenderProcess(cfg.sim.seed, cfg.sim.mode, cfg.sim.covisible, self.view)
+            except OSError as exc:
+                self.render_fallbacks += 1
+                log.warning("simulated %s sensor: no render process (%s); rendering in this process", self.view, exc)
         self._warm_up()
 
     def _warm_up(self) -> None:

@@ -223,3 +223,15 @@ def test_render_process_gives_the_in_process_frames_and_falls_back_when_it_dies(
     assert radar.counters()["render_fallbacks"] == 1
     radar.close()
     radar.close()
+
+
+def test_sim_sensor_renders_itself_when_no_render_process_can_start(monkeypatch):
+    import mmatch.sim.renderd as renderd
+
+    monkeypatch.setattr(renderd.sys, "executable", "/nonexistent/python")
+    cfg = config.from_dict({"vehicle": {"role": "cav"}, "sim": {"mode": "easy"}})
+    fake_now = [9000.0]
+    radar = SimRadar(cfg, clock=lambda: fake_now[0], sleep=lambda dt: fake_now.__setitem__(0, fake_now[0] + dt))
+    assert radar._renderer is None and radar.counters()["render_fallbacks"] == 1
+    assert radar.read(1.0) is not None
+    radar.close()
