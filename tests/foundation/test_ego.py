@@ -105,3 +105,28 @@ def test_too_few_pairs_gives_a_reason():
                       vehicle_features=np.zeros((1, 32), np.float32))
     res = get_aligner("centroid-icp")(own, own, get_matcher("oracle")(own, own, MatchContext(np.array([[0, 0]]))))
     assert res.T is None and "needs 2" in res.reason
+
+
+def test_consensus_scores_a_bounded_number_of_hypotheses_in_dense_traffic(monkeypatch):
+    """38 vehicles a view make about 2700 hypotheses; the coarse scoring takes at most
+    coarse_budget / (Va x Vb) two-pair ones plus half that of single-pair ones, the most alike
+    first, and still finds the transform. A 12-vehicle frame stays under the cap (unchanged)."""
+    import mmatch.ego.match.consensus as cs
+    from mmatch.ego.match.synthetic import dense_pair
+
+    scored = []
+    real = cs._vehicle_scores
+    monkeypatch.setattr(cs, "_vehicle_scores", lambda A, B, alike, R, t, cfg: (scored.append(len(R)),
+                                                                             real(A, B, alike, R, t, cfg))[1])
+    cfg = cs.ConsensusConfig()
+    for per_view, capped in ((38, True), (12, False)):
+        own, other, gt, T = dense_pair(4101, per_view)
+        scored.clear()
+        res = cs.ConsensusMatcher(cfg)(own, other, MatchContext(descriptor_scale=1.0))
+        most = max(300, cfg.coarse_budget // (own.num_vehicles * other.num_vehicles))
+        first = scored[0]
+        if capped:
+            assert first <= most + most // 2
+        else:
+            assert first < most
+        assert res.T_hint is not None and rte_m(T, res.T_hint) < 2.0 and rre_deg(T, res.T_hint) < 5.0
