@@ -257,7 +257,8 @@ class Node:
         lag["processed"] = (self.clock() - frame.stamp) * 1e3
         choice = self._pair(frame)
         lag["paired"] = (self.clock() - frame.stamp) * 1e3
-        return self._fuse(frame, own, {**timings, **{f"lag:{k}": v for k, v in lag.items()}}, choice)
+        timings = {**timings, **{f"lag:{k}": v for k, v in lag.items()}}
+        return self._fuse(frame, own, timings, choice)
 
     def _wanted(self, stamp: float) -> bool:
         """True while some live CAV may still deliver a frame closer to `stamp`."""

@@ -51,10 +51,12 @@ class SimRadar(RadarSource):
         self._renderer: RenderProcess | None = None
         if cfg.sim.render_process:
             try:
-                self._renderer = RenderProcess(cfg.sim.seed, cfg.sim.mode, cfg.sim.covisible, self.view)
+                sim = cfg.sim
+                self._renderer = RenderProcess(sim.seed, sim.mode, sim.covisible, self.view)
             except OSError as exc:
                 self.render_fallbacks += 1
-                log.warning("simulated %s sensor: no render process (%s); rendering in this process", self.view, exc)
+                log.warning("simulated %s sensor: no render process (%s); rendering in this process",
+                            self.view, exc)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -74,7 +76,8 @@ class SimRadar(RadarSource):
                 return self._renderer.observe(t, timeout_s)
             except RenderError as exc:
                 self.render_fallbacks += 1
-                log.warning("simulated %s sensor: %s; rendering in this process from now on", self.view, exc)
+                log.warning("simulated %s sensor: %s; rendering in this process from now on",
+                            self.view, exc)
                 self._renderer.close()
                 self._renderer = None
         return self.scenario.observe(self.view, t)

@@ -63,7 +63,8 @@ class RenderProcess:
 
     def __init__(self, seed: int, mode: str, covisible: int, view: str) -> None:
         args = [sys.executable, "-m", "mmatch.sim.renderd", str(seed), mode, str(covisible), view]
-        self._proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0)
+        self._proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      bufsize=0)
         self._closed = False
 
     def observe(self, t: float, timeout_s: float) -> Any:

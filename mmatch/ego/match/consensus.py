@@ -110,8 +110,9 @@ class ConsensusMatcher:
         R, t = _pair_hypotheses(A.centres, B.centres, cand, cfg, cost, most)
         if yaws is not None and len(cand):
             single = cand
-            if len(cand) * len(yaws) > most // 2:      # each candidate under every yaw, the most alike
-                single = cand[np.sort(np.argsort(cost, kind="stable")[:max(1, most // 2 // len(yaws))])]
+            if len(cand) * len(yaws) > most // 2:      # each candidate under every yaw: the most alike
+                n_single = max(1, most // 2 // len(yaws))
+                single = cand[np.sort(np.argsort(cost, kind="stable")[:n_single])]
             R1, t1 = _single_pair_hypotheses(A.centres, B.centres, single, yaws)
             R, t = np.concatenate([R, R1]), np.concatenate([t, t1])
         if yaws is not None and len(R):
