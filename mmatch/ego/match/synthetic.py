@@ -80,7 +80,9 @@ def dense_pair(seed: int, per_view: int = 40) -> tuple[SharedFrame, SharedFrame,
     xs = (np.arange(lanes) - (lanes - 1) / 2) * 3.5
     n_world = int(per_view * 2.2)
     pos: list[np.ndarray] = []
-    while len(pos) < n_world:
+    tries = 0
+    while len(pos) < n_world and tries < 200 * n_world:  # a full road takes what fits (10 lanes x 140 m)
+        tries += 1
         p = np.array([rng.choice(xs) + rng.normal(0, 0.2), rng.uniform(-30, 110)])
         if all(np.hypot(*(p - q)) > 5.0 for q in pos) and np.hypot(*p) > 6:
             pos.append(p)
