@@ -8,13 +8,12 @@ the exception that rendering raised.
 Why a process: rendering a frame is Python-heavy (5-20 ms), and a simulated sensor thread in
 the vehicle's own process holds the interpreter lock against the frame loop it feeds, which
 real sensors (a serial port, a UDP socket) never do. `RenderProcess` is the client the live
-simulated sensors use; it falls back to rendering in the caller's process if the child cannot
-start or dies (counted, logged once).
+simulated sensors use; it raises RenderError when the child is gone or late, and the sensor
+(edge/sources/sim.py) then renders in its own process (counted, logged once).
 """
 
 from __future__ import annotations
 
-import logging
 import os
 import pickle
 import select
@@ -23,8 +22,6 @@ import subprocess
 import sys
 import time
 from typing import Any, BinaryIO
-
-log = logging.getLogger(__name__)
 
 _LEN = struct.Struct("<I")
 

@@ -186,12 +186,17 @@ def test_edge_bench_quick_numbers():
     assert 0 < out["auth_sign_verify_ms_median"] < 50 and out["auth_forged_refused_per_s"] > 10
 
 
+def _sim_radar_on_a_fake_clock(cfg, start: float) -> SimRadar:
+    """A SimRadar whose clock starts at `start` and advances only by its own sleeps."""
+    now = [start]
+    return SimRadar(cfg, clock=lambda: now[0], sleep=lambda dt: now.__setitem__(0, now[0] + dt))
+
+
 def test_sim_vehicle_clock_offset_shifts_stamps_not_the_world():
     seen = []
     cfg = config.from_dict({"vehicle": {"role": "cav"}, "sim": {"clock_offset_s": 0.3, "mode": "easy",
                                                                   "render_process": False}})
-    fake_now = [5000.0]
-    radar = SimRadar(cfg, clock=lambda: fake_now[0], sleep=lambda dt: fake_now.__setitem__(0, fake_now[0] + dt))
+    radar = _sim_radar_on_a_fake_clock(cfg, 5000.0)
     real = radar.scenario.observe
     radar.scenario.observe = lambda view, t: (seen.append(t), real(view, t))[1]
     f = None
@@ -207,8 +212,7 @@ def test_render_process_gives_the_in_process_frames_and_falls_back_when_it_dies(
     from mmatch.sim.scenario import make_scenario
 
     cfg = config.from_dict({"vehicle": {"role": "ego"}, "sim": {"mode": "easy", "seed": 3}})
-    fake_now = [7000.0]
-    radar = SimRadar(cfg, clock=lambda: fake_now[0], sleep=lambda dt: fake_now.__setitem__(0, fake_now[0] + dt))
+    radar = _sim_radar_on_a_fake_clock(cfg, 7000.0)
     assert radar._renderer is not None
     here = make_scenario(3, "easy", covisible=cfg.sim.covisible)
     got = [radar.read(1.0) for _ in range(3)]
@@ -230,8 +234,7 @@ def test_sim_sensor_renders_itself_when_no_render_process_can_start(monkeypatch)
 
     monkeypatch.setattr(renderd.sys, "executable", "/nonexistent/python")
     cfg = config.from_dict({"vehicle": {"role": "cav"}, "sim": {"mode": "easy"}})
-    fake_now = [9000.0]
-    radar = SimRadar(cfg, clock=lambda: fake_now[0], sleep=lambda dt: fake_now.__setitem__(0, fake_now[0] + dt))
+    radar = _sim_radar_on_a_fake_clock(cfg, 9000.0)
     assert radar._renderer is None and radar.counters()["render_fallbacks"] == 1
     assert radar.read(1.0) is not None
     radar.close()

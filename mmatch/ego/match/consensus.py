@@ -112,7 +112,7 @@ class ConsensusMatcher:
             single = cand
             if len(cand) * len(yaws) > most // 2:      # each candidate under every yaw: the most alike
                 n_single = max(1, most // 2 // len(yaws))
-                single = cand[np.sort(np.argsort(cost, kind="stable")[:n_single])]
+                single = cand[_most_alike(cost, n_single)]
             R1, t1 = _single_pair_hypotheses(A.centres, B.centres, single, yaws)
             R, t = np.concatenate([R, R1]), np.concatenate([t, t1])
         if yaws is not None and len(R):
@@ -262,7 +262,12 @@ def _candidates(D: np.ndarray, k: int, gate: float) -> np.ndarray:
     return np.argwhere(keep)
 
 
-def _pair_hypotheses(A, B, cand, cfg, cost=None, most=None):
+def _most_alike(cost: np.ndarray, n: int) -> np.ndarray:
+    """Indices of the n least `cost` entries, in their original order."""
+    return np.sort(np.argsort(cost, kind="stable")[:n])
+
+
+def _pair_hypotheses(A, B, cand, cfg, cost, most):
     """Transforms (H, 2, 2), (H, 2) from every two compatible candidate pairs; with more than
     `most`, those whose two pairs have the least summed `cost` (C,) (the descriptor distance),
     in their original order."""
@@ -278,9 +283,8 @@ def _pair_hypotheses(A, B, cand, cfg, cost=None, most=None):
     db = np.linalg.norm(B[j] - B[l], axis=1)
     ok &= (np.abs(da - db) < cfg.pair_dist_tol_m + cfg.pair_dist_tol_rel * da) & (da > cfg.min_baseline_m)
     i, j, k, l = i[ok], j[ok], k[ok], l[ok]
-    if cost is not None and most is not None and len(i) > most:
-        c = cost[p[ok]] + cost[q[ok]]
-        keep = np.sort(np.argsort(c, kind="stable")[:most])
+    if len(i) > most:
+        keep = _most_alike(cost[p[ok]] + cost[q[ok]], most)
         i, j, k, l = i[keep], j[keep], k[keep], l[keep]
     va, vb = A[k] - A[i], B[l] - B[j]
     ang = np.arctan2(va[:, 1], va[:, 0]) - np.arctan2(vb[:, 1], vb[:, 0])
