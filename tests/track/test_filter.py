@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from mmatch.ego.rigid import se2_to_matrix
-from mmatch.ego.track.filter import FilterConfig, motion, new_hypothesis, predict, update, wrap
+from mmatch.ego.track.filter import (Candidate, FilterConfig, PoseTrack, motion, new_hypothesis, predict, step, update,
+                                     wrap)
 from mmatch.evaluate import EvalConfig, prepare_scene
 from mmatch.metrics import is_gross, is_success, rre_deg, rte_m
 from mmatch.sequence_eval import SequenceEvalConfig, tracking_fuser
@@ -63,3 +64,14 @@ def test_a_curve_the_manoeuvre_test_misses_stays_within_success():
         e = _yaw_errors(0.25, seed)
         assert e[20:].max() < 5.0, (seed, e.max())
         assert np.median(e[60:]) < 0.6, (seed, np.median(e[60:]))
+
+
+def test_a_new_track_starts_from_the_surest_of_two_nearby_candidates():
+    # a full search weighed two transforms 1.9 m apart (one hypothesis' worth); the less sure one
+    # is listed first and must not become the track with the surer one dropped beside it
+    cov = np.diag([0.3, 0.3, np.radians(1.0) ** 2])
+    near, surest = Candidate(np.array([0.0, 22.0, 0.0]), cov, 0.97), Candidate(np.array([0.0, 20.1, 0.0]), cov, 0.98)
+    track = PoseTrack([], 0.0, 0.0, np.zeros(2), np.zeros(2))
+    step(track, [near, surest], 0.05, FilterConfig())
+    assert len(track.hypotheses) == 1
+    assert np.allclose(track.best().x[:3], surest.z)

@@ -300,7 +300,8 @@ def step(track: PoseTrack, candidates: list[Candidate], dt: float, cfg: FilterCo
                 h2.score -= cfg.contradict_weight * max(_logit(max(far)), 0.5)
             h2.score -= np.log(2.0) * max(dt, 0.0) / max(cfg.half_life_s, 1e-6)
         out.append(h2)
-    for k, c in enumerate(candidates):
+    for k in sorted(range(len(candidates)), key=lambda k: -candidates[k].p):   # the surest first: a
+        c = candidates[k]                      # less sure one within distinct_m would block it
         if not independent or k in used or c.p < cfg.spawn_confidence:
             continue
         if any(not _distinct(h, c.z, cfg) for h in out):
