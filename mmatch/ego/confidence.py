@@ -8,7 +8,8 @@ turns it into the probability that the estimate lies within 2 m / 5 deg of the t
 - ambiguity: the best distinct alternative (more than 5 m or 10 deg away: the matcher's
   other hypotheses, a 180 deg flip about the matched vehicles, slides along the
   background's main direction) scored by the matcher's own evidence; its margin;
-- mutual sighting: each vehicle sees the other where the estimate puts it;
+- mutual sighting: each vehicle sees the other where the estimate puts it, moving as the
+  other's own Doppler ego-motion says;
 - Doppler: each matched vehicle's radial speeds in the two views are explained by one
   plausible ground velocity (two lines of sight fix it);
 - free space: the other radar's background must not lie where our radar sees through;
@@ -46,14 +47,15 @@ MODEL_PATH = Path(__file__).with_name("confidence_model.json")
 CHI2_3_95 = 7.8147                  # 95 % quantile of chi-square with 3 degrees of freedom
 
 FEATURES: tuple[str, ...] = (
-    "n_pairs", "pair_chi2", "margin", "has_alternative", "sighting", "doppler_plausible",
+    "n_pairs", "pair_chi2", "margin", "has_alternative", "sighting", "sighting_conflict", "doppler_plausible",
     "doppler_tested", "free_space_violation", "bg_overlap", "bg_overlap_back", "log_pos_sigma",
     "log_yaw_sigma", "bg_linearity", "yaw_gap_deg", "n_background",
 )
 # which evidence a refusal names when it weighs most against the estimate
 REASONS: dict[str, str] = {
     "n_pairs": "too few vehicles", "pair_chi2": "poor fit", "margin": "ambiguous",
-    "has_alternative": "ambiguous", "sighting": "poor fit", "doppler_plausible": "poor fit",
+    "has_alternative": "ambiguous", "sighting": "poor fit", "sighting_conflict": "poor fit",
+    "doppler_plausible": "poor fit",
     "doppler_tested": "too few vehicles", "free_space_violation": "poor fit", "bg_overlap": "poor fit",
     "bg_overlap_back": "poor fit", "log_pos_sigma": "symmetric background",
     "log_yaw_sigma": "symmetric background", "bg_linearity": "symmetric background",
@@ -73,7 +75,9 @@ class ConfidenceConfig:
     gate and the cell size within which background terms count as one; heading_sigma_deg:
     the heading prior on the yaw; sighting_m / camera_half_fov_deg / camera_range_m /
     body_offset_m: where one vehicle expects to see the other (radar at the front bumper,
-    body centre behind it); max_speed_mps: a ground velocity above this is implausible;
+    body centre behind it); sighting_speed_mps: how far the radial ground speed of what is
+    seen there may differ from the other radar's own (Doppler and ego-motion errors), judged
+    on vehicles of at least sighting_speed_points returns (one or two may be wheels); max_speed_mps: a ground velocity above this is implausible;
     slides_m: slide alternatives along the background's main direction; inflation: factor
     on the covariance (None: the fitted model's); model_path: the fitted probability
     model (None: the packaged one)."""
@@ -88,6 +92,8 @@ class ConfidenceConfig:
     heading_sigma_deg: float = 3.0
     heading_gate_deg: float = 10.0
     sighting_m: float = 3.5
+    sighting_speed_mps: float = 1.5
+    sighting_speed_points: int = 3
     camera_half_fov_deg: float = 30.0
     camera_range_m: float = 60.0
     body_offset_m: float = 2.3
@@ -234,6 +240,8 @@ class PairContext:
         self.yaws = heading_yaws(own, other)
         self.ge, self.ue = radial_ground_speeds(own)
         self.gc, self.uc = radial_ground_speeds(other)
+        self.ne = np.bincount(own.vehicle_index, minlength=own.num_vehicles)[:own.num_vehicles]
+        self.nc = np.bincount(other.vehicle_index, minlength=other.num_vehicles)[:other.num_vehicles]
         ours = np.vstack([self.bg_own, own.vehicle_points[:, :2]]).astype(float)
         self.free = _FreeSpace(ours) if len(ours) >= 5 else None
         if len(self.bg_own) >= 3:
@@ -397,19 +405,38 @@ def _in_view(p: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
     return (r > 4.0) & (r < cfg.camera_range_m) & (az < np.radians(cfg.camera_half_fov_deg))
 
 
-def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(H,) +1 per vehicle seen by the other where the hypothesis puts it, -1 per one expected but not seen."""
+def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mutual sighting of hypotheses R (H, 2, 2), t (H, 2): (H,) +1 per vehicle seen by the other
+    where the hypothesis puts it, -1 per one expected but not seen; and (H,) the number of views
+    (0-2) where what is seen there moves otherwise than the other radar itself.
+
+    A conflict: every detected vehicle within sighting_m of where the hypothesis puts the other
+    radar's body has a radial ground speed that differs from the other radar's own velocity
+    along that line of sight by more than sighting_speed_mps (at least one known, from
+    sighting_speed_points returns or more). In a
+    platoon, a slide by one vehicle gap puts the other radar onto the vehicle ahead of it:
+    something is seen there, but at its own speed."""
     cfg = ctx.cfg
     body = np.array([0.0, -cfg.body_offset_m])
     cav_in_ego = np.einsum("hab,b->ha", R, body) + t
     ego_in_cav = np.einsum("hba,hb->ha", R, body[None] - t)
-    out = np.zeros(len(R))
-    for where, cents in ((cav_in_ego, ctx.A.centres), (ego_in_cav, ctx.B.centres)):
+    v_cav = np.einsum("hab,b->ha", R, np.asarray(ctx.other.ego_velocity, float).reshape(2))      # Ego frame
+    v_ego = np.einsum("hba,b->ha", R, np.asarray(ctx.own.ego_velocity, float).reshape(2))        # CAV frame
+    out, conflict = np.zeros(len(R)), np.zeros(len(R))
+    for where, cents, g, u, v, n in ((cav_in_ego, ctx.A.centres, ctx.ge, ctx.ue, v_cav, ctx.ne),
+                                     (ego_in_cav, ctx.B.centres, ctx.gc, ctx.uc, v_ego, ctx.nc)):
         view = _in_view(where, cfg)
-        seen = (np.linalg.norm(where[:, None] - cents[None], axis=2) < cfg.sighting_m).any(axis=1) \
-            if len(cents) else np.zeros(len(R), bool)
+        if not len(cents):
+            out -= view.astype(float)
+            continue
+        near = np.linalg.norm(where[:, None] - cents[None], axis=2) < cfg.sighting_m          # (H, V)
+        gap = np.abs(np.einsum("va,ha->hv", np.nan_to_num(u), v) - g[None])                   # NaN: unknown
+        gap[:, n < cfg.sighting_speed_points] = np.nan        # one or two returns: wheels or a false one
+        seen = near.any(axis=1)
+        wrong = seen & ~(near & ~(gap > cfg.sighting_speed_mps)).any(axis=1)
         out += np.where(view, np.where(seen, 1.0, -1.0), 0.0)
-    return out
+        conflict += view & wrong
+    return out, conflict
 
 
 def two_view_velocities(own: SharedFrame, other: SharedFrame, R: np.ndarray, pairs: np.ndarray,
@@ -479,6 +506,7 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
                       both - both.mean(axis=1, keepdims=True))
         ev = np.linalg.eigvalsh(C)
         lin = ev[:, 0] / np.maximum(ev[:, 1], 1e-9)
+    sighting, conflict = _sighting(ctx, R, t)
     gap = np.degrees(np.abs(_wrap(_yaw(R)[:, None] - ctx.yaws)).min(axis=1)) if ctx.yaws is not None \
         else np.full(H, 45.0)
     pos = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 1e-9) / max(inflation, 1e-9))
@@ -488,7 +516,8 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         "pair_chi2": np.minimum(pair_chi2, 25.0),
         "margin": margin,
         "has_alternative": has_alt,
-        "sighting": _sighting(ctx, R, t),
+        "sighting": sighting,
+        "sighting_conflict": conflict,
         "doppler_plausible": plausible,
         "doppler_tested": np.minimum(n_solved, 4).astype(float),
         "free_space_violation": free,

@@ -105,3 +105,31 @@ def test_eval_reports_coverage_gross_rate_calibration_and_risk_coverage():
     curve = {x["coverage"]: x for x in rep["risk_coverage"]}
     assert set(curve) == {0.5, 0.6, 0.7, 0.8}      # 4 candidates among 5 scenes: up to 0.8
     assert curve[0.6]["gross_rate"] == pytest.approx(1 / 3) and curve[0.8]["gross_rate"] == pytest.approx(0.5)
+
+
+def _platoon_frames(ego_speed: float, points: int = 4) -> tuple[SharedFrame, SharedFrame]:
+    """An Ego with no detections and a CAV (12 m/s, +y) that sees one vehicle 15 m ahead driving
+    at 15 m/s (its rear face: `points` returns, each Doppler 15 - 12 m/s along its ray)."""
+    x = np.linspace(-0.6, 0.6, points)
+    p = np.column_stack([x, np.full(points, 13.8), np.zeros(points)])
+    u = p[:, :2] / np.linalg.norm(p[:, :2], axis=1, keepdims=True)
+    doppler = u @ np.array([0.0, 15.0]) - u @ np.array([0.0, 12.0])
+    pts = np.column_stack([p, doppler, np.full(points, 20.0)]).astype(np.float32)
+    box = np.array([[600, 300, 680, 360, 0.9, 15.0]], np.float32)
+    other = SharedFrame("cav", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 12.0]), vehicle_points=pts,
+                        vehicle_index=np.zeros(points, np.int32), vehicle_boxes=box,
+                        vehicle_box_index=np.zeros(1, np.int32), vehicle_centers=np.array([[0.0, 15.0]], np.float32),
+                        vehicle_features=np.zeros((1, 32), np.float32), background=np.zeros((0, 3), np.float32))
+    own = SharedFrame("ego", 0, 0.0, 0.5, ego_velocity=np.array([0.0, ego_speed]))
+    return own, other
+
+
+@pytest.mark.parametrize("ego_speed, points, conflict", [(15.0, 4, 0.0), (10.0, 4, 1.0), (10.0, 2, 0.0)])
+def test_a_sighting_moving_otherwise_than_the_other_radar_is_a_conflict(ego_speed, points, conflict):
+    # the hypothesis puts the CAV 17.3 m behind the Ego: the CAV should then see the Ego's body
+    # 15 m ahead, where it does see a vehicle; that vehicle drives at 15 m/s
+    own, other = _platoon_frames(ego_speed, points)
+    X, _, _ = features(PairContext(own, other), np.eye(2)[None], np.array([[0.0, -17.3]]), np.zeros((0, 2), int))
+    feats = dict(zip(FEATURES, X[0]))
+    assert feats["sighting"] == 1.0                 # something is there (position only)
+    assert feats["sighting_conflict"] == conflict   # judged by speed from three returns on
