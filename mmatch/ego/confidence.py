@@ -77,7 +77,8 @@ class ConfidenceConfig:
     body_offset_m: where one vehicle expects to see the other (radar at the front bumper,
     body centre behind it); sighting_speed_mps: how far the radial ground speed of what is
     seen there may differ from the other radar's own (Doppler and ego-motion errors), judged
-    on vehicles of at least sighting_speed_points returns (one or two may be wheels); max_speed_mps: a ground velocity above this is implausible;
+    on vehicles of at least sighting_speed_points returns (one or two may be wheels);
+    occlusion_half_width_m: a nearer vehicle this close to the line of sight hides what is behind it; max_speed_mps: a ground velocity above this is implausible;
     slides_m: slide alternatives along the background's main direction; inflation: factor
     on the covariance (None: the fitted model's); model_path: the fitted probability
     model (None: the packaged one)."""
@@ -94,6 +95,7 @@ class ConfidenceConfig:
     sighting_m: float = 3.5
     sighting_speed_mps: float = 1.5
     sighting_speed_points: int = 3
+    occlusion_half_width_m: float = 1.2
     camera_half_fov_deg: float = 30.0
     camera_range_m: float = 60.0
     body_offset_m: float = 2.3
@@ -407,15 +409,15 @@ def _in_view(p: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
 
 def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mutual sighting of hypotheses R (H, 2, 2), t (H, 2): (H,) +1 per vehicle seen by the other
-    where the hypothesis puts it, -1 per one expected but not seen; and (H,) the number of views
-    (0-2) where what is seen there moves otherwise than the other radar itself.
+    where the hypothesis puts it, -1 per one expected but not seen (0 where a nearer detected
+    vehicle hides the spot: a CAV behind a truck is no evidence against); and (H,) the number
+    of views (0-2) where what is seen there moves otherwise than the other radar itself.
 
     A conflict: every detected vehicle within sighting_m of where the hypothesis puts the other
     radar's body has a radial ground speed that differs from the other radar's own velocity
     along that line of sight by more than sighting_speed_mps (at least one known, from
-    sighting_speed_points returns or more). In a
-    platoon, a slide by one vehicle gap puts the other radar onto the vehicle ahead of it:
-    something is seen there, but at its own speed."""
+    sighting_speed_points returns or more). In a platoon, a slide by one vehicle gap puts the
+    other radar onto the vehicle ahead of it: something is seen there, but at its own speed."""
     cfg = ctx.cfg
     body = np.array([0.0, -cfg.body_offset_m])
     cav_in_ego = np.einsum("hab,b->ha", R, body) + t
@@ -434,9 +436,19 @@ def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarra
         gap[:, n < cfg.sighting_speed_points] = np.nan        # one or two returns: wheels or a false one
         seen = near.any(axis=1)
         wrong = seen & ~(near & ~(gap > cfg.sighting_speed_mps)).any(axis=1)
-        out += np.where(view, np.where(seen, 1.0, -1.0), 0.0)
+        out += np.where(view, np.where(seen, 1.0, np.where(_occluded(where, cents, cfg), 0.0, -1.0)), 0.0)
         conflict += view & wrong
     return out, conflict
+
+
+def _occluded(where: np.ndarray, cents: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
+    """(H,) whether a detected vehicle (cents (V, 2)) nearer than `where` (H, 2) lies across the
+    line of sight to it (within occlusion_half_width_m of the ray at its own range)."""
+    r_w = np.linalg.norm(where, axis=1)                                      # (H,)
+    r_c = np.linalg.norm(cents, axis=1)                                      # (V,)
+    gap = np.abs(_wrap(np.arctan2(where[:, 0], where[:, 1])[:, None] - np.arctan2(cents[:, 0], cents[:, 1])[None]))
+    across = r_c[None] * np.sin(np.minimum(gap, np.pi / 2))
+    return ((r_c[None] < r_w[:, None] - cfg.sighting_m) & (across < cfg.occlusion_half_width_m)).any(axis=1)
 
 
 def two_view_velocities(own: SharedFrame, other: SharedFrame, R: np.ndarray, pairs: np.ndarray,

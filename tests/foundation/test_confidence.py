@@ -133,3 +133,12 @@ def test_a_sighting_moving_otherwise_than_the_other_radar_is_a_conflict(ego_spee
     feats = dict(zip(FEATURES, X[0]))
     assert feats["sighting"] == 1.0                 # something is there (position only)
     assert feats["sighting_conflict"] == conflict   # judged by speed from three returns on
+
+
+@pytest.mark.parametrize("x, sighting", [(0.0, 0.0), (10.0, -1.0)])
+def test_the_other_radar_hidden_behind_a_nearer_vehicle_is_not_counted_unseen(x, sighting):
+    # the hypothesis puts the Ego's body 30 m ahead of the CAV: straight behind the vehicle the
+    # CAV sees at 15 m (hidden: no verdict) or 10 m to the side of it (in clear view, not seen)
+    own, other = _platoon_frames(12.0)
+    X, _, _ = features(PairContext(own, other), np.eye(2)[None], np.array([[-x, -32.3]]), np.zeros((0, 2), int))
+    assert dict(zip(FEATURES, X[0]))["sighting"] == sighting
