@@ -48,7 +48,7 @@ CHI2_3_95 = 7.8147                  # 95 % quantile of chi-square with 3 degrees
 
 FEATURES: tuple[str, ...] = (
     "n_pairs", "pair_chi2", "margin", "has_alternative", "sighting", "sighting_conflict", "doppler_plausible",
-    "doppler_tested", "free_space_violation", "bg_overlap", "bg_overlap_back", "log_pos_sigma",
+    "doppler_tested", "doppler_heading_deg", "free_space_violation", "bg_overlap", "bg_overlap_back", "log_pos_sigma",
     "log_yaw_sigma", "bg_linearity", "yaw_gap_deg", "n_background",
 )
 # which evidence a refusal names when it weighs most against the estimate
@@ -56,7 +56,7 @@ REASONS: dict[str, str] = {
     "n_pairs": "too few vehicles", "pair_chi2": "poor fit", "margin": "ambiguous",
     "has_alternative": "ambiguous", "sighting": "poor fit", "sighting_conflict": "poor fit",
     "doppler_plausible": "poor fit",
-    "doppler_tested": "too few vehicles", "free_space_violation": "poor fit", "bg_overlap": "poor fit",
+    "doppler_tested": "too few vehicles", "doppler_heading_deg": "poor fit", "free_space_violation": "poor fit", "bg_overlap": "poor fit",
     "bg_overlap_back": "poor fit", "log_pos_sigma": "symmetric background",
     "log_yaw_sigma": "symmetric background", "bg_linearity": "symmetric background",
     "yaw_gap_deg": "poor fit", "n_background": "too few vehicles",
@@ -69,8 +69,8 @@ class ConfidenceConfig:
     estimate" with the reason; None: the fitted model's threshold); min_margin: an estimate
     whose margin over the best distinct alternative, by the matcher's own evidence, is below
     this is refused as ambiguous whatever its probability, unless the threshold is 0 (emit
-    everything) (the arbiter and the matcher disagree: on the fitting scenes a negative margin went with 40 % of the gross errors and
-    5 % of the successes); distinct_m / distinct_deg: alternatives farther than this
+    everything) (the arbiter and the matcher disagree: on the fitting scenes a negative
+    margin went with 40 % of the gross errors and 5 % of the successes); distinct_m / distinct_deg: alternatives farther than this
     count as distinct; bg_sigma_m / bg_gate_m / bg_cell_m: background correspondence noise,
     gate and the cell size within which background terms count as one; heading_sigma_deg:
     the heading prior on the yaw; sighting_m / camera_half_fov_deg / camera_range_m /
@@ -78,8 +78,9 @@ class ConfidenceConfig:
     body centre behind it); sighting_speed_mps: how far the radial ground speed of what is
     seen there may differ from the other radar's own (Doppler and ego-motion errors), judged
     on vehicles of at least sighting_speed_points returns (one or two may be wheels);
-    occlusion_half_width_m: a nearer vehicle this close to the line of sight hides what is behind it; max_speed_mps: a ground velocity above this is implausible;
-    slides_m: slide alternatives along the background's main direction; inflation: factor
+    occlusion_half_width_m: a nearer vehicle this close to the line of sight hides what is
+    behind it; max_speed_mps: a ground velocity above this is implausible; min_speed_mps: a
+    slower one has no direction to compare with the road's (doppler_heading_deg); slides_m: slide alternatives along the background's main direction; inflation: factor
     on the covariance (None: the fitted model's); model_path: the fitted probability
     model (None: the packaged one)."""
 
@@ -100,6 +101,7 @@ class ConfidenceConfig:
     camera_range_m: float = 60.0
     body_offset_m: float = 2.3
     max_speed_mps: float = 40.0
+    min_speed_mps: float = 2.0
     slides_m: tuple[float, ...] = (-24.0, -9.0, 9.0, 24.0)
     inflation: float | None = None
     model_path: str | None = None
@@ -479,6 +481,30 @@ def _solve_two_view(ge, ue, gc, uc, R, pairs, min_sin: float = 0.25):
     return v, ok
 
 
+def _off_road_deg(ctx: PairContext, R: np.ndarray, v: np.ndarray, solved: np.ndarray) -> np.ndarray:
+    """(H,) the largest angle (deg, 0-90, direction either way) between a matched vehicle's
+    two-view ground velocity v (H, P, 2) and the nearer of the two radars' own directions of
+    travel (the Ego's, and the CAV's rotated by R (H, 2, 2)), over the vehicles solved and
+    moving faster than min_speed_mps; 0 where none is. Traffic drives along the road of one of
+    the two: under a wrong pose the lines of sight are wrong and so is the solved direction."""
+    cfg = ctx.cfg
+    moving = solved & (np.linalg.norm(np.nan_to_num(v), axis=2) > cfg.min_speed_mps)
+    if not moving.any():
+        return np.zeros(len(R))
+    heading = np.arctan2(v[..., 1], v[..., 0])                                         # (H, P)
+    gaps = []
+    ve = np.asarray(ctx.own.ego_velocity, float).reshape(2)
+    vc = np.einsum("hab,b->ha", R, np.asarray(ctx.other.ego_velocity, float).reshape(2))
+    if np.all(np.isfinite(ve)) and np.hypot(*ve) > cfg.min_speed_mps:
+        gaps.append(np.abs(np.sin(heading - np.arctan2(ve[1], ve[0]))))
+    if np.all(np.isfinite(vc)) and np.hypot(*vc[0]) > cfg.min_speed_mps:
+        gaps.append(np.abs(np.sin(heading - np.arctan2(vc[:, 1], vc[:, 0])[:, None])))
+    if not gaps:
+        return np.zeros(len(R))
+    gap = np.degrees(np.arcsin(np.clip(np.minimum.reduce(gaps), 0.0, 1.0)))
+    return np.where(moving, np.nan_to_num(gap), 0.0).max(axis=1)
+
+
 def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
              match: MatchResult | None = None, inflation: float = 1.0
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -494,13 +520,14 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
     info, chi2, dof, pair_chi2 = _information(ctx, R, t, pairs)
     cov = covariances(info, chi2, dof, inflation)
     margin, has_alt, amb = _margins(ctx, R, t, pairs, match.hypotheses if match else None)
-    n_solved, plausible = np.zeros(H), np.full(H, 0.5)
+    n_solved, plausible, off_road = np.zeros(H), np.full(H, 0.5), np.zeros(H)
     for pg, idx in _groups(pairs):
         v, solved = _solve_two_view(ctx.ge, ctx.ue, ctx.gc, ctx.uc, R[idx], pg)
         fast = np.linalg.norm(v, axis=2) < cfg.max_speed_mps
         ns = solved.sum(axis=1)
         n_solved[idx] = ns
         plausible[idx] = np.where(ns > 0, (fast & solved).sum(axis=1) / np.maximum(ns, 1), 0.5)
+        off_road[idx] = _off_road_deg(ctx, R[idx], v, solved)
     overlap, back = np.zeros(H), np.zeros(H)
     theirs = np.einsum("hab,nb->hna", R, ctx.bg_other) + t[:, None] if len(ctx.bg_other) else None
     if ctx.tree_own is not None and ctx.tree_other is not None:
@@ -532,6 +559,7 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         "sighting_conflict": conflict,
         "doppler_plausible": plausible,
         "doppler_tested": np.minimum(n_solved, 4).astype(float),
+        "doppler_heading_deg": np.minimum(off_road, 30.0),
         "free_space_violation": free,
         "bg_overlap": overlap,
         "bg_overlap_back": back,

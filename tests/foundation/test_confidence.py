@@ -142,3 +142,31 @@ def test_the_other_radar_hidden_behind_a_nearer_vehicle_is_not_counted_unseen(x,
     own, other = _platoon_frames(12.0)
     X, _, _ = features(PairContext(own, other), np.eye(2)[None], np.array([[-x, -32.3]]), np.zeros((0, 2), int))
     assert dict(zip(FEATURES, X[0]))["sighting"] == sighting
+
+
+def _seen_from(sender: str, at: np.ndarray, v_radar: np.ndarray, v_target: np.ndarray) -> SharedFrame:
+    """A frame of one vehicle at `at` (radar frame, m) driving at v_target, seen by a radar
+    moving at v_radar (4 returns, Doppler (v_target - v_radar) along each ray)."""
+    p = np.column_stack([at[0] + np.array([-0.6, -0.2, 0.2, 0.6]), np.full(4, at[1]), np.zeros(4)])
+    u = p[:, :2] / np.linalg.norm(p[:, :2], axis=1, keepdims=True)
+    pts = np.column_stack([p, u @ (v_target - v_radar), np.full(4, 20.0)]).astype(np.float32)
+    return SharedFrame(sender, 0, 0.0, 0.5, ego_velocity=v_radar, vehicle_points=pts,
+                       vehicle_index=np.zeros(4, np.int32),
+                       vehicle_boxes=np.array([[600, 300, 680, 360, 0.9, float(np.hypot(*at))]], np.float32),
+                       vehicle_box_index=np.zeros(1, np.int32), vehicle_centers=np.array([at], np.float32),
+                       vehicle_features=np.zeros((1, 32), np.float32))
+
+
+def test_a_pose_that_turns_the_shared_vehicles_velocity_off_the_road_is_marked():
+    # Ego and CAV side by side, both at 10 m/s along +y; a car ahead between them at 15 m/s:
+    # the two radial speeds solve to its velocity only under the right rotation
+    v_radar, v_car = np.array([0.0, 10.0]), np.array([0.0, 15.0])
+    own = _seen_from("ego", np.array([5.0, 20.0]), v_radar, v_car)
+    other = _seen_from("cav", np.array([-5.0, 20.0]), v_radar, v_car)
+    rot = lambda deg: np.array([[np.cos(np.radians(deg)), -np.sin(np.radians(deg))],
+                                [np.sin(np.radians(deg)), np.cos(np.radians(deg))]])
+    R = np.stack([rot(0.0), rot(40.0)])
+    X, _, _ = features(PairContext(own, other), R, np.array([[10.0, 0.0], [10.0, 0.0]]), np.array([[0, 0]]))
+    off = X[:, FEATURES.index("doppler_heading_deg")]
+    assert X[0, FEATURES.index("doppler_tested")] == 1.0
+    assert off[0] < 1.0 and off[1] > 15.0, off          # half the turn: the CAV's own heading turns too
