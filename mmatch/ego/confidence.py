@@ -47,16 +47,16 @@ MODEL_PATH = Path(__file__).with_name("confidence_model.json")
 CHI2_3_95 = 7.8147                  # 95 % quantile of chi-square with 3 degrees of freedom
 
 FEATURES: tuple[str, ...] = (
-    "n_pairs", "pair_chi2", "margin", "has_alternative", "sighting", "sighting_conflict", "doppler_plausible",
-    "doppler_tested", "doppler_heading_deg", "free_space_violation", "bg_overlap", "bg_overlap_back", "log_pos_sigma",
-    "log_yaw_sigma", "bg_linearity", "yaw_gap_deg", "n_background",
+    "n_pairs", "pair_chi2", "margin", "has_alternative", "sighting", "sighting_conflict",
+    "doppler_plausible", "doppler_tested", "doppler_heading_deg", "free_space_violation", "bg_overlap",
+    "bg_overlap_back", "log_pos_sigma", "log_yaw_sigma", "bg_linearity", "yaw_gap_deg", "n_background",
 )
 # which evidence a refusal names when it weighs most against the estimate
 REASONS: dict[str, str] = {
     "n_pairs": "too few vehicles", "pair_chi2": "poor fit", "margin": "ambiguous",
     "has_alternative": "ambiguous", "sighting": "poor fit", "sighting_conflict": "poor fit",
-    "doppler_plausible": "poor fit",
-    "doppler_tested": "too few vehicles", "doppler_heading_deg": "poor fit", "free_space_violation": "poor fit", "bg_overlap": "poor fit",
+    "doppler_plausible": "poor fit", "doppler_tested": "too few vehicles", "doppler_heading_deg": "poor fit",
+    "free_space_violation": "poor fit", "bg_overlap": "poor fit",
     "bg_overlap_back": "poor fit", "log_pos_sigma": "symmetric background",
     "log_yaw_sigma": "symmetric background", "bg_linearity": "symmetric background",
     "yaw_gap_deg": "poor fit", "n_background": "too few vehicles",
@@ -70,19 +70,20 @@ class ConfidenceConfig:
     whose margin over the best distinct alternative, by the matcher's own evidence, is below
     this is refused as ambiguous whatever its probability, unless the threshold is 0 (emit
     everything) (the arbiter and the matcher disagree: on the fitting scenes a negative
-    margin went with 40 % of the gross errors and 5 % of the successes); distinct_m / distinct_deg: alternatives farther than this
-    count as distinct; bg_sigma_m / bg_gate_m / bg_cell_m: background correspondence noise,
-    gate and the cell size within which background terms count as one; heading_sigma_deg:
-    the heading prior on the yaw; sighting_m / camera_half_fov_deg / camera_range_m /
-    body_offset_m: where one vehicle expects to see the other (radar at the front bumper,
-    body centre behind it); sighting_speed_mps: how far the radial ground speed of what is
-    seen there may differ from the other radar's own (Doppler and ego-motion errors), judged
-    on vehicles of at least sighting_speed_points returns (one or two may be wheels);
-    occlusion_half_width_m: a nearer vehicle this close to the line of sight hides what is
-    behind it; max_speed_mps: a ground velocity above this is implausible; min_speed_mps: a
-    slower one has no direction to compare with the road's (doppler_heading_deg); slides_m: slide alternatives along the background's main direction; inflation: factor
-    on the covariance (None: the fitted model's); model_path: the fitted probability
-    model (None: the packaged one)."""
+    margin went with 40 % of the gross errors and 5 % of the successes); distinct_m /
+    distinct_deg: alternatives farther than this count as distinct; bg_sigma_m / bg_gate_m /
+    bg_cell_m: background correspondence noise, gate and the cell size within which
+    background terms count as one; heading_sigma_deg: the heading prior on the yaw;
+    sighting_m / camera_half_fov_deg / camera_range_m / body_offset_m: where one vehicle
+    expects to see the other (radar at the front bumper, body centre behind it);
+    sighting_speed_mps: how far the radial ground speed of what is seen there may differ
+    from the other radar's own (Doppler and ego-motion errors), judged on vehicles of at
+    least sighting_speed_points returns (one or two may be wheels); occlusion_half_width_m:
+    a nearer vehicle this close to the line of sight hides what is behind it; max_speed_mps:
+    a ground velocity above this is implausible; min_speed_mps: a slower one has no
+    direction to compare with the road's (doppler_heading_deg); slides_m: slide alternatives
+    along the background's main direction; inflation: factor on the covariance (None: the
+    fitted model's); model_path: the fitted probability model (None: the packaged one)."""
 
     threshold: float | None = None
     min_margin: float = 0.0
