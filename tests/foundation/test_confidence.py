@@ -124,7 +124,8 @@ def _platoon_frames(ego_speed: float, points: int = 4) -> tuple[SharedFrame, Sha
     return own, other
 
 
-@pytest.mark.parametrize("ego_speed, points, conflict", [(15.0, 4, 0.0), (10.0, 4, 1.0), (10.0, 2, 0.0)])
+@pytest.mark.parametrize("ego_speed, points, conflict",
+                         [(15.0, 4, 0.0), (10.0, 4, 1.0), (10.0, 2, 0.0), (float("nan"), 4, 0.0)])
 def test_a_sighting_moving_otherwise_than_the_other_radar_is_a_conflict(ego_speed, points, conflict):
     # the hypothesis puts the CAV 17.3 m behind the Ego: the CAV should then see the Ego's body
     # 15 m ahead, where it does see a vehicle; that vehicle drives at 15 m/s
@@ -132,7 +133,8 @@ def test_a_sighting_moving_otherwise_than_the_other_radar_is_a_conflict(ego_spee
     X, _, _ = features(PairContext(own, other), np.eye(2)[None], np.array([[0.0, -17.3]]), np.zeros((0, 2), int))
     feats = dict(zip(FEATURES, X[0]))
     assert feats["sighting"] == 1.0                 # something is there (position only)
-    assert feats["sighting_conflict"] == conflict   # judged by speed from three returns on
+    assert feats["sighting_conflict"] == conflict   # judged by speed from three returns on, when
+    assert np.isfinite(X).all()                     # the Ego's own velocity is known
 
 
 @pytest.mark.parametrize("x, sighting", [(0.0, 0.0), (10.0, -1.0)])
