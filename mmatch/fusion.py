@@ -30,14 +30,15 @@ class FusionConfig:
     descriptor scale for frames whose context gives none (off: 1, see EvalConfig); confidence:
     how sure an estimate must be to be fused (with tracking: the pose filter's confidence);
     extra_hypotheses: the matcher's best distinct other hypotheses the arbiter weighs beside
-    the aligner's results, each with the pairs it implies; objects: the fused object tracks
+    the aligner's results, each with the pairs it implies (None: 3 with MMatch's own aligner,
+    none with any other, so that a peer aligner is judged on its own results); objects: the fused object tracks
     (with tracking only, ego/track/objects.py)."""
 
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
     track: TrackConfig = TrackConfig(max_age_s=0.0)
     descriptor_calibration: bool = False
-    extra_hypotheses: int = 3
+    extra_hypotheses: int | None = None
     confidence: ConfidenceConfig = ConfidenceConfig()
     objects: ObjectTrackConfig = ObjectTrackConfig()
 
@@ -235,7 +236,10 @@ class Fuser:
             R, t = aligned.T[None, :2, :2], aligned.T[None, :2, 3]
         dz = aligned.T[2, 3]
         pairs = [np.asarray(match.pairs, np.int32).reshape(-1, 2)] * len(R)
-        extra = _other_hypotheses(match, R, t, self.config.extra_hypotheses)
+        n_extra = self.config.extra_hypotheses
+        if n_extra is None:
+            n_extra = 3 if self.config.aligner == DEFAULT_ALIGNER else 0
+        extra = _other_hypotheses(match, R, t, n_extra)
         for Rh, th in extra:
             pairs.append(self._scorer.pairs_under(own, other, Rh, th, scale, (ctx.A, ctx.B)))
         if extra:

@@ -130,3 +130,18 @@ def test_consensus_scores_a_bounded_number_of_hypotheses_in_dense_traffic(monkey
         else:
             assert first < most
         assert res.T_hint is not None and rte_m(T, res.T_hint) < 2.0 and rre_deg(T, res.T_hint) < 5.0
+
+
+def test_a_peer_aligner_is_judged_on_its_own_results(hard_dir):
+    """The arbiter weighs the matcher's other hypotheses beside MMatch's own aligner only: a
+    peer aligner's candidates are its own result (the peer comparison measures the peer)."""
+    from mmatch.fusion import FusionConfig, Fuser
+    own_alig, peer = Fuser(FusionConfig()), Fuser(FusionConfig(aligner="icp-all"))
+    more = 0
+    for f in sorted(hard_dir.glob("*.npz"))[:6]:
+        s = load_scene(f)
+        own, other = shared_from_labels(s.ego, "ego"), shared_from_labels(s.cav, "cav")
+        res = peer.fuse(own, other)
+        assert len(res.candidates) <= 1, len(res.candidates)
+        more += len(own_alig.fuse(own, other).candidates) > 1
+    assert more >= 3                      # MMatch's path does weigh alternatives
