@@ -21,6 +21,7 @@ from mmatch.ego.track.predict import Prediction
 from mmatch.shared import SharedFrame
 
 SOURCE_OWN, SOURCE_OTHER, SOURCE_BOTH = 0, 1, 2
+OWN_EXTRA_HYPOTHESES = 3      # the matcher's other hypotheses the arbiter weighs beside MMatch's aligner
 
 
 @dataclass(frozen=True)
@@ -30,9 +31,9 @@ class FusionConfig:
     descriptor scale for frames whose context gives none (off: 1, see EvalConfig); confidence:
     how sure an estimate must be to be fused (with tracking: the pose filter's confidence);
     extra_hypotheses: the matcher's best distinct other hypotheses the arbiter weighs beside
-    the aligner's results, each with the pairs it implies (None: 3 with MMatch's own aligner,
-    none with any other, so that a peer aligner is judged on its own results); objects: the fused object tracks
-    (with tracking only, ego/track/objects.py)."""
+    the aligner's results, each with the pairs it implies (None: OWN_EXTRA_HYPOTHESES with
+    MMatch's own aligner, none with any other, so that a peer aligner is judged on its own
+    results); objects: the fused object tracks (with tracking only, ego/track/objects.py)."""
 
     matcher: str = DEFAULT_MATCHER
     aligner: str = DEFAULT_ALIGNER
@@ -98,6 +99,8 @@ class Fuser:
         self.descriptor_scale = RunningDescriptorScale()
         self._scorer = get_matcher("consensus")
         self._threshold = threshold(config.confidence)
+        self._extra = config.extra_hypotheses if config.extra_hypotheses is not None else \
+            (OWN_EXTRA_HYPOTHESES if config.aligner == DEFAULT_ALIGNER else 0)
 
     def fuse(self, own: SharedFrame, other: SharedFrame | None,
              context: MatchContext | None = None) -> FusionResult:
@@ -236,10 +239,7 @@ class Fuser:
             R, t = aligned.T[None, :2, :2], aligned.T[None, :2, 3]
         dz = aligned.T[2, 3]
         pairs = [np.asarray(match.pairs, np.int32).reshape(-1, 2)] * len(R)
-        n_extra = self.config.extra_hypotheses
-        if n_extra is None:
-            n_extra = 3 if self.config.aligner == DEFAULT_ALIGNER else 0
-        extra = _other_hypotheses(match, R, t, n_extra)
+        extra = _other_hypotheses(match, R, t, self._extra)
         for Rh, th in extra:
             pairs.append(self._scorer.pairs_under(own, other, Rh, th, scale, (ctx.A, ctx.B)))
         if extra:

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import Hypotheses, MatchResult, heading_yaws, radial_ground_speeds
+from mmatch.ego.base import Hypotheses, MatchResult, heading_yaws, point_counts, radial_ground_speeds
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.errors import ConfigError
 from mmatch.shared import SharedFrame
@@ -245,8 +245,7 @@ class PairContext:
         self.yaws = heading_yaws(own, other)
         self.ge, self.ue = radial_ground_speeds(own)
         self.gc, self.uc = radial_ground_speeds(other)
-        self.ne = np.bincount(own.vehicle_index, minlength=own.num_vehicles)[:own.num_vehicles]
-        self.nc = np.bincount(other.vehicle_index, minlength=other.num_vehicles)[:other.num_vehicles]
+        self.ne, self.nc = point_counts(own), point_counts(other)
         ours = np.vstack([self.bg_own, own.vehicle_points[:, :2]]).astype(float)
         self.free = _FreeSpace(ours) if len(ours) >= 5 else None
         if len(self.bg_own) >= 3:
@@ -495,10 +494,11 @@ def _off_road_deg(ctx: PairContext, R: np.ndarray, v: np.ndarray, solved: np.nda
     heading = np.arctan2(v[..., 1], v[..., 0])                                         # (H, P)
     gaps = []
     ve = np.asarray(ctx.own.ego_velocity, float).reshape(2)
-    vc = np.einsum("hab,b->ha", R, np.asarray(ctx.other.ego_velocity, float).reshape(2))
+    vo = np.asarray(ctx.other.ego_velocity, float).reshape(2)
     if np.all(np.isfinite(ve)) and np.hypot(*ve) > cfg.min_speed_mps:
         gaps.append(np.abs(np.sin(heading - np.arctan2(ve[1], ve[0]))))
-    if np.all(np.isfinite(vc)) and np.hypot(*vc[0]) > cfg.min_speed_mps:
+    if np.all(np.isfinite(vo)) and np.hypot(*vo) > cfg.min_speed_mps:
+        vc = np.einsum("hab,b->ha", R, vo)                                        # Ego frame
         gaps.append(np.abs(np.sin(heading - np.arctan2(vc[:, 1], vc[:, 0])[:, None])))
     if not gaps:
         return np.zeros(len(R))

@@ -107,21 +107,26 @@ def test_eval_reports_coverage_gross_rate_calibration_and_risk_coverage():
     assert curve[0.6]["gross_rate"] == pytest.approx(1 / 3) and curve[0.8]["gross_rate"] == pytest.approx(0.5)
 
 
+def _seen_from(sender: str, at: np.ndarray, v_radar: np.ndarray, v_target: np.ndarray,
+               points: int = 4) -> SharedFrame:
+    """A frame of one vehicle centred at `at` (radar frame, m) driving at v_target, seen by a
+    radar moving at v_radar: `points` returns across its rear face 1.2 m nearer, each with the
+    Doppler (v_target - v_radar) along its ray."""
+    p = np.column_stack([at[0] + np.linspace(-0.6, 0.6, points), np.full(points, at[1] - 1.2), np.zeros(points)])
+    u = p[:, :2] / np.linalg.norm(p[:, :2], axis=1, keepdims=True)
+    pts = np.column_stack([p, u @ (v_target - v_radar), np.full(points, 20.0)]).astype(np.float32)
+    return SharedFrame(sender, 0, 0.0, 0.5, ego_velocity=v_radar, vehicle_points=pts,
+                       vehicle_index=np.zeros(points, np.int32),
+                       vehicle_boxes=np.array([[600, 300, 680, 360, 0.9, float(np.hypot(*at))]], np.float32),
+                       vehicle_box_index=np.zeros(1, np.int32), vehicle_centers=np.array([at], np.float32),
+                       vehicle_features=np.zeros((1, 32), np.float32))
+
+
 def _platoon_frames(ego_speed: float, points: int = 4) -> tuple[SharedFrame, SharedFrame]:
     """An Ego with no detections and a CAV (12 m/s, +y) that sees one vehicle 15 m ahead driving
-    at 15 m/s (its rear face: `points` returns, each Doppler 15 - 12 m/s along its ray)."""
-    x = np.linspace(-0.6, 0.6, points)
-    p = np.column_stack([x, np.full(points, 13.8), np.zeros(points)])
-    u = p[:, :2] / np.linalg.norm(p[:, :2], axis=1, keepdims=True)
-    doppler = u @ np.array([0.0, 15.0]) - u @ np.array([0.0, 12.0])
-    pts = np.column_stack([p, doppler, np.full(points, 20.0)]).astype(np.float32)
-    box = np.array([[600, 300, 680, 360, 0.9, 15.0]], np.float32)
-    other = SharedFrame("cav", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 12.0]), vehicle_points=pts,
-                        vehicle_index=np.zeros(points, np.int32), vehicle_boxes=box,
-                        vehicle_box_index=np.zeros(1, np.int32), vehicle_centers=np.array([[0.0, 15.0]], np.float32),
-                        vehicle_features=np.zeros((1, 32), np.float32), background=np.zeros((0, 3), np.float32))
-    own = SharedFrame("ego", 0, 0.0, 0.5, ego_velocity=np.array([0.0, ego_speed]))
-    return own, other
+    at 15 m/s (`points` returns)."""
+    other = _seen_from("cav", np.array([0.0, 15.0]), np.array([0.0, 12.0]), np.array([0.0, 15.0]), points)
+    return SharedFrame("ego", 0, 0.0, 0.5, ego_velocity=np.array([0.0, ego_speed])), other
 
 
 @pytest.mark.parametrize("ego_speed, points, conflict",
@@ -144,19 +149,6 @@ def test_the_other_radar_hidden_behind_a_nearer_vehicle_is_not_counted_unseen(x,
     own, other = _platoon_frames(12.0)
     X, _, _ = features(PairContext(own, other), np.eye(2)[None], np.array([[-x, -32.3]]), np.zeros((0, 2), int))
     assert dict(zip(FEATURES, X[0]))["sighting"] == sighting
-
-
-def _seen_from(sender: str, at: np.ndarray, v_radar: np.ndarray, v_target: np.ndarray) -> SharedFrame:
-    """A frame of one vehicle at `at` (radar frame, m) driving at v_target, seen by a radar
-    moving at v_radar (4 returns, Doppler (v_target - v_radar) along each ray)."""
-    p = np.column_stack([at[0] + np.array([-0.6, -0.2, 0.2, 0.6]), np.full(4, at[1]), np.zeros(4)])
-    u = p[:, :2] / np.linalg.norm(p[:, :2], axis=1, keepdims=True)
-    pts = np.column_stack([p, u @ (v_target - v_radar), np.full(4, 20.0)]).astype(np.float32)
-    return SharedFrame(sender, 0, 0.0, 0.5, ego_velocity=v_radar, vehicle_points=pts,
-                       vehicle_index=np.zeros(4, np.int32),
-                       vehicle_boxes=np.array([[600, 300, 680, 360, 0.9, float(np.hypot(*at))]], np.float32),
-                       vehicle_box_index=np.zeros(1, np.int32), vehicle_centers=np.array([at], np.float32),
-                       vehicle_features=np.zeros((1, 32), np.float32))
 
 
 def test_a_pose_that_turns_the_shared_vehicles_velocity_off_the_road_is_marked():
