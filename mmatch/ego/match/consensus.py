@@ -63,6 +63,10 @@ class ConsensusConfig:
     distinct_m: float = 1.5              # hypotheses closer than this (and distinct_deg) count as one
     distinct_deg: float = 3.0
     yaw_gate_deg: float = 10.0           # hypotheses this far from every velocity-heading yaw are dropped
+    sighting_hypotheses: bool = True     # each detection taken as the other vehicle itself, under each
+                                         # heading yaw: a vehicle following another sees it even when
+                                         # the two views share one vehicle or none
+    sighting_refine: int = 2             # the best of them refined beside refine_hypotheses
     camera_half_fov_deg: float = 30.0    # where a vehicle is expected to be detected by the other camera
     camera_range_m: float = 70.0
     miss_weight: float = 0.1             # per vehicle that the other camera should see but did not
@@ -119,6 +123,11 @@ class ConsensusMatcher:
             keep = _yaw_gap(R, yaws) < np.radians(cfg.yaw_gate_deg)
             if keep.any():
                 R, t = R[keep], t[keep]
+        n_regular = len(R)
+        if yaws is not None and cfg.sighting_hypotheses and not ctx.prior_only:
+            R2, t2 = _sighting_hypotheses(A.centres, B.centres, yaws, cfg.body_offset_m)
+            R, t = np.concatenate([R, R2]), np.concatenate([t, t2])
+        n_sighting = len(R) - n_regular
         prior = ctx.prior_T
         if prior is not None:            # the track's prediction always competes
             R, t = np.concatenate([R, prior[None, :2, :2]]), np.concatenate([t, prior[None, :2, 3]])
@@ -131,7 +140,13 @@ class ConsensusMatcher:
         if prior is not None:
             veh_score[-1] = np.inf
             n_refine = cfg.refine_with_prior
-        top = _distinct_best(R, t, veh_score, cfg, n_refine)
+        sighted = np.zeros(len(R), bool)
+        sighted[n_regular:n_regular + n_sighting] = True
+        order = np.argsort(-veh_score)
+        top = distinct_best(R, t, order[~sighted[order]], n_refine, cfg.distinct_m, cfg.distinct_deg)
+        if n_sighting and cfg.sighting_refine:           # slots of their own: they never displace a pair's
+            top = np.concatenate([top, distinct_best(R, t, order[sighted[order]], cfg.sighting_refine,
+                                                     cfg.distinct_m, cfg.distinct_deg)])
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
         rcfg = cfg.tracking_refine() if ctx.prior_only and prior is not None else cfg.refine
@@ -242,6 +257,23 @@ def _single_pair_hypotheses(A, B, cand, yaws):
     R = np.repeat(Rk[None], len(cand), 0).reshape(-1, 2, 2)
     Bj = np.repeat(B[cand[:, 1]], len(yaws), 0)
     t = np.repeat(A[cand[:, 0]], len(yaws), 0) - np.einsum("hij,hj->hi", R, Bj)
+    return R, t
+
+
+def _sighting_hypotheses(A, B, yaws, body_offset_m):
+    """Transforms that put the other vehicle on one own detection, or the own vehicle on one of the
+    other's, under each heading-prior yaw: (4 (Va + Vb), 2, 2), (4 (Va + Vb), 2).
+
+    The radar sits body_offset_m ahead of its vehicle's centre (y forward): other -> own maps the
+    other's body centre (0, -offset) onto own detection A[k]; the own body centre onto B[m] is
+    R B[m] + t = (0, -offset)."""
+    c, s = np.cos(yaws), np.sin(yaws)
+    Rk = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], 1)             # (Y, 2, 2)
+    body = np.array([0.0, -body_offset_m])
+    t_a = A[:, None] - np.einsum("yij,j->yi", Rk, body)[None]                   # (Va, Y, 2)
+    t_b = body - np.einsum("yij,vj->vyi", Rk, B)                                # (Vb, Y, 2)
+    t = np.concatenate([t_a.reshape(-1, 2), t_b.reshape(-1, 2)])
+    R = np.tile(Rk, (len(A) + len(B), 1, 1))
     return R, t
 
 
