@@ -124,7 +124,7 @@ class ConsensusMatcher:
             if keep.any():
                 R, t = R[keep], t[keep]
         n_regular = len(R)
-        if yaws is not None and cfg.sighting_hypotheses and not ctx.prior_only:
+        if yaws is not None and cfg.sighting_hypotheses and ctx.prior_T is None:
             R2, t2 = _sighting_hypotheses(A.centres, B.centres, yaws, cfg.body_offset_m)
             R, t = np.concatenate([R, R2]), np.concatenate([t, t2])
         n_sighting = len(R) - n_regular
