@@ -125,7 +125,7 @@ def test_consensus_scores_a_bounded_number_of_hypotheses_in_dense_traffic(monkey
         res = cs.ConsensusMatcher(cfg)(own, other, MatchContext(descriptor_scale=1.0))
         most = max(300, cfg.coarse_budget // (own.num_vehicles * other.num_vehicles))
         first = scored[0]
-        sighting = 4 * (own.num_vehicles + other.num_vehicles)     # one per detection and yaw: O(V)
+        sighting = 4 * (own.num_vehicles + other.num_vehicles) if cfg.sighting_hypotheses else 0   # O(V)
         if capped:
             assert first <= most + most // 2 + sighting
         else:

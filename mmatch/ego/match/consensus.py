@@ -252,10 +252,15 @@ def _likeness(D, yaws, speed, cfg, conf_a, conf_b):
     return of
 
 
+def _yaw_rotations(yaws: np.ndarray) -> np.ndarray:
+    """(Y, 2, 2) planar rotation matrices of yaws (Y,) rad."""
+    c, s = np.cos(yaws), np.sin(yaws)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], 1)
+
+
 def _single_pair_hypotheses(A, B, cand, yaws):
     """Transforms from one candidate pair placed under each heading-prior yaw: (C*4, 2, 2), (C*4, 2)."""
-    c, s = np.cos(yaws), np.sin(yaws)
-    Rk = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], 1)             # (4, 2, 2)
+    Rk = _yaw_rotations(yaws)                                                   # (4, 2, 2)
     R = np.repeat(Rk[None], len(cand), 0).reshape(-1, 2, 2)
     Bj = np.repeat(B[cand[:, 1]], len(yaws), 0)
     t = np.repeat(A[cand[:, 0]], len(yaws), 0) - np.einsum("hij,hj->hi", R, Bj)
@@ -269,8 +274,7 @@ def _sighting_hypotheses(A, B, yaws, body_offset_m):
     The radar sits body_offset_m ahead of its vehicle's centre (y forward): other -> own maps the
     other's body centre (0, -offset) onto own detection A[k]; the own body centre onto B[m] is
     R B[m] + t = (0, -offset)."""
-    c, s = np.cos(yaws), np.sin(yaws)
-    Rk = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], 1)             # (Y, 2, 2)
+    Rk = _yaw_rotations(yaws)                                                   # (Y, 2, 2)
     body = np.array([0.0, -body_offset_m])
     t_a = A[:, None] - np.einsum("yij,j->yi", Rk, body)[None]                   # (Va, Y, 2)
     t_b = body - np.einsum("yij,vj->vyi", Rk, B)                                # (Vb, Y, 2)
