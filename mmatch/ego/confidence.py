@@ -219,7 +219,7 @@ def _normals(pts: np.ndarray, tree: cKDTree, k: int = 16, radius_m: float = 4.0)
     cnt = np.maximum(ok.sum(axis=1), 1)[:, None]
     mean = (nb * ok[..., None]).sum(axis=1) / cnt
     dd = (nb - mean[:, None]) * ok[..., None]
-    C = np.einsum("nki,nkj->nij", dd, dd) / cnt[..., None]
+    C = dd.transpose(0, 2, 1) @ dd / cnt[..., None]
     w, v = np.linalg.eigh(C)                                   # ascending
     lin = np.where(ok.sum(axis=1) >= 3, 1.0 - w[:, 0] / np.maximum(w[:, 1], 1e-9), 0.0)
     return v[:, :, 0], np.clip(lin, 0.0, 1.0)
@@ -317,14 +317,41 @@ def _pair_information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.
     if len(pairs):
         dm = mahalanobis(A, B, R, t)[:, i, j]                                   # (H, P)
         b = B.centres[j]
-        S = A.cov[i][None] + np.einsum("hab,pbc,hdc->hpad", R, B.cov[j], R)      # (H, P, 2, 2)
-        Jy = np.einsum("hab,pb->hpa", R, np.column_stack([-b[:, 1], b[:, 0]]))   # (H, P, 2)
-        J = np.concatenate([np.broadcast_to(np.eye(2), (H, len(pairs), 2, 2)), Jy[..., None]], axis=3)
-        W = np.linalg.inv(S)
-        info += np.einsum("hpai,hpab,hpbj->hij", J, W, J)
+        Rh = R[:, None]
+        S = A.cov[i][None] + Rh @ B.cov[j][None] @ Rh.transpose(0, 1, 3, 2)     # (H, P, 2, 2)
+        Jy = np.column_stack([-b[:, 1], b[:, 0]]) @ R.transpose(0, 2, 1)        # (H, P, 2)
+        info += _information_sum(Jy, _inv2(S))
         pair_chi2 = np.mean(dm ** 2, axis=1)
         chi2 = np.sum(np.minimum(dm ** 2, 25.0), axis=1)
     return info, chi2, 2.0 * len(pairs), pair_chi2
+
+
+def _inv2(S: np.ndarray) -> np.ndarray:
+    """Inverses of (..., 2, 2) matrices (explicit: np.linalg.inv costs more on small batches)."""
+    a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
+    det = a * d - b * c
+    out = np.empty_like(S)
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = d / det, -b / det, -c / det, a / det
+    return out
+
+
+def _information_sum(Jy: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(H, 3, 3) sum over n of J^T P J for J = [I | Jy] (2 x 3 per term: x, y, yaw), P (H, N, 2, 2)
+    symmetric and Jy (H, N, 2) the derivative of a moved point by the yaw."""
+    PJ = (P @ Jy[..., None])[..., 0]                                         # (H, N, 2)
+    out = np.empty((len(P), 3, 3))
+    out[:, :2, :2] = P.sum(axis=1)
+    out[:, :2, 2] = out[:, 2, :2] = PJ.sum(axis=1)
+    out[:, 2, 2] = (Jy * PJ).sum(axis=(1, 2))
+    return out
+
+
+def _cell_counts(moved: np.ndarray, ok: np.ndarray, cell_m: float) -> np.ndarray:
+    """(H,) distinct cell_m grid cells among each hypothesis's points moved (H, N, 2) where ok."""
+    H = len(moved)
+    c = np.floor(moved / cell_m).astype(np.int64) + (1 << 20)              # ranges of 2 million cells
+    key = (np.arange(H, dtype=np.int64)[:, None] << 42) | (c[..., 0] << 21) | c[..., 1]
+    return np.bincount(np.unique(key[ok]) >> 42, minlength=H).astype(float)
 
 
 def _background_information(ctx: PairContext, R: np.ndarray, t: np.ndarray, info: np.ndarray,
@@ -334,7 +361,7 @@ def _background_information(ctx: PairContext, R: np.ndarray, t: np.ndarray, info
     H = len(R)
     if ctx.tree_own is not None and len(ctx.bg_other) >= 3:
         src = ctx.bg_other
-        moved = np.einsum("hab,nb->hna", R, src) + t[:, None]                    # (H, N, 2)
+        moved = src @ R.transpose(0, 2, 1) + t[:, None]                          # (H, N, 2)
         d, k = ctx.tree_own.query(moved.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
         d, k = d.reshape(H, -1), k.reshape(H, -1)
         ok = np.isfinite(d)
@@ -343,15 +370,14 @@ def _background_information(ctx: PairContext, R: np.ndarray, t: np.ndarray, info
         line = (li >= 0.5)[..., None, None]
         P = np.where(line, np.einsum("hni,hnj->hnij", n, n), (1 - li)[..., None, None] * np.eye(2))
         P = P * ok[..., None, None]
-        cells = np.array([len(np.unique(np.floor(moved[h][ok[h]] / cfg.bg_cell_m).astype(np.int64), axis=0))
-                          for h in range(H)], float)
+        cells = _cell_counts(moved, ok, cfg.bg_cell_m)
         n_ok = ok.sum(axis=1)
         w = np.where(n_ok >= 3, cells / np.maximum(n_ok, 1), 0.0) / cfg.bg_sigma_m ** 2
-        Jy = np.einsum("hab,nb->hna", R, np.column_stack([-src[:, 1], src[:, 0]]))
-        J = np.concatenate([np.broadcast_to(np.eye(2), (H, len(src), 2, 2)), Jy[..., None]], axis=3)
-        info += w[:, None, None] * np.einsum("hnai,hnab,hnbj->hij", J, P, J)
+        Jy = np.column_stack([-src[:, 1], src[:, 0]]) @ R.transpose(0, 2, 1)
+        info += w[:, None, None] * _information_sum(Jy, P)
         r = ctx.bg_own[kk] - moved
-        chi2 += w * np.einsum("hni,hnij,hnj->h", r, P, r)
+        chi2 += w * (r[..., 0] ** 2 * P[..., 0, 0] + 2 * r[..., 0] * r[..., 1] * P[..., 0, 1]
+                     + r[..., 1] ** 2 * P[..., 1, 1]).sum(axis=1)
         dof += np.where(n_ok >= 3, cells, 0.0)
     if ctx.yaws is not None:
         gap = np.abs(_wrap(_yaw(R)[:, None] - ctx.yaws)).min(axis=1)
@@ -530,11 +556,11 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         plausible[idx] = np.where(ns > 0, (fast & solved).sum(axis=1) / np.maximum(ns, 1), 0.5)
         off_road[idx] = _off_road_deg(ctx, R[idx], v, solved)
     overlap, back = np.zeros(H), np.zeros(H)
-    theirs = np.einsum("hab,nb->hna", R, ctx.bg_other) + t[:, None] if len(ctx.bg_other) else None
+    theirs = ctx.bg_other @ R.transpose(0, 2, 1) + t[:, None] if len(ctx.bg_other) else None
     if ctx.tree_own is not None and ctx.tree_other is not None:
         d, _ = ctx.tree_own.query(theirs.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
         overlap = np.isfinite(d).reshape(H, -1).mean(axis=1)
-        ours_in_theirs = np.einsum("hba,hnb->hna", R, ctx.bg_own[None] - t[:, None])
+        ours_in_theirs = (ctx.bg_own[None] - t[:, None]) @ R
         d, _ = ctx.tree_other.query(ours_in_theirs.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
         back = np.isfinite(d).reshape(H, -1).mean(axis=1)
     free = ctx.free.violation(theirs) if ctx.free is not None and theirs is not None and len(ctx.bg_other) >= 5 \
@@ -542,8 +568,8 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
     lin = np.ones(H)
     if theirs is not None and len(ctx.bg_own) + len(ctx.bg_other) >= 3:
         both = np.concatenate([np.broadcast_to(ctx.bg_own, (H,) + ctx.bg_own.shape), theirs], axis=1)
-        C = np.einsum("hni,hnj->hij", both - both.mean(axis=1, keepdims=True),
-                      both - both.mean(axis=1, keepdims=True))
+        centred = both - both.mean(axis=1, keepdims=True)
+        C = centred.transpose(0, 2, 1) @ centred
         ev = np.linalg.eigvalsh(C)
         lin = ev[:, 0] / np.maximum(ev[:, 1], 1e-9)
     sighting, conflict = _sighting(ctx, R, t)

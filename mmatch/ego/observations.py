@@ -164,12 +164,39 @@ def _observe(frame: SharedFrame, model: ObservationModel) -> Observations:
                         cam_penalty=np.where(has, model.camera_penalty, 0.0))
 
 
+@dataclass(frozen=True)
+class PairedObservations:
+    """Both views' vehicles stacked for `mahalanobis` (best estimates, then camera ones), in
+    float32: what every hypothesis of one frame pair shares (`paired`, once per pair)."""
+
+    Va: int
+    Vb: int
+    ca: np.ndarray          # (2 Va, 2)
+    Sa: np.ndarray          # (2 Va, 2, 2)
+    cb: np.ndarray          # (2 Vb, 2)
+    Sb: np.ndarray          # (2 Vb, 2, 2)
+    pen: np.ndarray         # (2 Va, 2 Vb) camera penalties of each combination
+
+
+def paired(A: Observations, B: Observations) -> PairedObservations:
+    """The per-pair part of `mahalanobis`, for calling it on many hypotheses."""
+    f = np.float32
+    Va, Vb = len(A.centres), len(B.centres)
+    pen_a = np.concatenate([np.zeros(Va), A.cam_penalty])
+    pen_b = np.concatenate([np.zeros(Vb), B.cam_penalty])
+    return PairedObservations(Va, Vb, np.concatenate([A.centres, A.cam_centres]).astype(f),
+                              np.concatenate([A.cov, A.cam_cov]).astype(f),
+                              np.concatenate([B.centres, B.cam_centres]).astype(f),
+                              np.concatenate([B.cov, B.cam_cov]).astype(f),
+                              (pen_a[:, None] + pen_b[None, :]).astype(f))
+
+
 def _maha_sq(ca, Sa, cb, Sb, R, t):
     """(H, Va, Vb) squared Mahalanobis distances; explicit 2x2 algebra (einsum is slow here),
     in float32 (half the memory traffic of these (H, Va, Vb) arrays; distances are gated at a
     few sigma, far above float32's resolution)."""
     f = np.float32
-    ca, Sa, cb, Sb, R, t = (np.asarray(x, f) for x in (ca, Sa, cb, Sb, R, t))
+    R, t = np.asarray(R, f), np.asarray(t, f)
     c, s = R[:, 0, 0][:, None], R[:, 1, 0][:, None]                           # (H, 1)
     bx, by = cb[None, :, 0], cb[None, :, 1]                                   # (1, Vb)
     btx, bty = c * bx - s * by + t[:, 0:1], s * bx + c * by + t[:, 1:2]       # (H, Vb)
@@ -187,7 +214,7 @@ def _maha_sq(ca, Sa, cb, Sb, R, t):
     return (s11 * dx * dx - 2 * s01 * dx * dy + s00 * dy * dy) / np.maximum(det, f(1e-12))
 
 
-def mahalanobis(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray,
+def mahalanobis(A: Observations | PairedObservations, B: Observations | None, R: np.ndarray, t: np.ndarray,
                 with_modes: bool = False):
     """(H, Va, Vb) Mahalanobis distance between own vehicles and other vehicles moved by (R, t).
 
@@ -195,17 +222,13 @@ def mahalanobis(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray,
     (the other's rotated into the own frame); each pair takes the best combination of the
     two views' estimates (penalties added). with_modes also returns the (H, Va, Vb) index of
     that combination (0 best-best, 1 best-camera, 2 camera-best, 3 camera-camera).
+    A may be `paired(A, B)` (B then None), computed once for many calls.
     """
-    Va, Vb = len(A.centres), len(B.centres)
-    ca = np.concatenate([A.centres, A.cam_centres])                   # (2 Va, 2): best, then camera
-    Sa = np.concatenate([A.cov, A.cam_cov])
-    cb = np.concatenate([B.centres, B.cam_centres])
-    Sb = np.concatenate([B.cov, B.cam_cov])
-    pen_a = np.concatenate([np.zeros(Va), A.cam_penalty])
-    pen_b = np.concatenate([np.zeros(Vb), B.cam_penalty])
-    q = _maha_sq(ca, Sa, cb, Sb, R, t) + pen_a[None, :, None] + pen_b[None, None, :]
+    P = A if isinstance(A, PairedObservations) else paired(A, B)
+    Va, Vb = P.Va, P.Vb
+    q = _maha_sq(P.ca, P.Sa, P.cb, P.Sb, R, t) + P.pen
     q = q.reshape(len(R), 2, Va, 2, Vb).transpose(0, 2, 4, 1, 3).reshape(len(R), Va, Vb, 4)
-    mode = q.argmin(axis=3).astype(np.int8)                            # 2 * own mode + other mode
-    best = np.take_along_axis(q, mode[..., None].astype(np.intp), axis=3)[..., 0]
+    mode = q.argmin(axis=3)                                            # 2 * own mode + other mode
+    best = np.take_along_axis(q, mode[..., None], axis=3)[..., 0]
     d = np.sqrt(np.maximum(best, 0.0))
-    return (d, mode) if with_modes else d
+    return (d, mode.astype(np.int8)) if with_modes else d

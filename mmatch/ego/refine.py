@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mmatch.ego.observations import Observations, mahalanobis
+from mmatch.ego.observations import Observations, mahalanobis, paired
 
 
 @dataclass(frozen=True)
@@ -37,7 +37,9 @@ class RefineConfig:
 
 def _rots(yaw: np.ndarray) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    out = np.empty(np.shape(yaw) + (2, 2))
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = c, -s, s, c
+    return out
 
 
 def refine(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndarray, bg_other: np.ndarray,
@@ -81,6 +83,10 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
         SA = np.stack([A.cov, A.cam_cov])
         CB = np.stack([B.centres, B.cam_centres])
         SB = np.stack([B.cov, B.cam_cov])
+        AB = paired(A, B)
+    if use_bg:
+        bg_other = np.asarray(bg_other, float)
+        w = cfg.bg_weight_total / len(bg_other) / cfg.bg_sigma_m ** 2
     for it in range(cfg.iterations):
         # only the hypotheses still moving are worked on (each one's fit is its own)
         idx = np.flatnonzero(active)
@@ -89,7 +95,7 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
         Hm = np.zeros((n_a, 3, 3))
         g = np.zeros((n_a, 3))
         if len(A.centres) and len(B.centres):
-            dm, mode = mahalanobis(A, B, Rm, t_a, with_modes=True)
+            dm, mode = mahalanobis(AB, None, Rm, t_a, with_modes=True)
             dm = np.where(ok_pair[None], dm, np.inf)
             j = dm.argmin(axis=2)                                 # (H, Va)
             i = np.broadcast_to(np.arange(dm.shape[1]), j.shape)
@@ -102,18 +108,26 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
                 ca, Sa = CA[m_ // 2, a_], SA[m_ // 2, a_]
                 cb, Sb = CB[m_ % 2, b_], SB[m_ % 2, b_]
                 Rk = Rm[h_]
-                r = ca - (np.einsum("kij,kj->ki", Rk, cb) + t_a[h_])
-                dr = -np.einsum("kij,kj->ki", Rk, np.column_stack([-cb[:, 1], cb[:, 0]]))
-                J = np.concatenate([dr[:, :, None], np.broadcast_to(-np.eye(2), (len(h_), 2, 2))], axis=2)
-                S = Sa + Rk @ Sb @ Rk.transpose(0, 2, 1)
-                W = np.linalg.inv(S)
-                JtW = J.transpose(0, 2, 1) @ W                                # (k, 3, 2)
-                hs, first = np.unique(h_, return_index=True)                 # h_ ascends (C order)
-                Hm[hs] += np.add.reduceat(JtW @ J, first, axis=0)
-                g[hs] += np.add.reduceat((JtW @ r[:, :, None])[..., 0], first, axis=0)
+                rb = (Rk @ cb[:, :, None])[..., 0]                            # R b, (k, 2)
+                r = ca - (rb + t_a[h_])
+                dr = np.column_stack([rb[:, 1], -rb[:, 0]])                   # -d(R b)/dyaw
+                W = _inv2(Sa + Rk @ Sb @ Rk.transpose(0, 2, 1))
+                # J = [dr | -I]: J^T W J = [[dr' W dr, -dr' W], [-W dr, W]], J^T W r = [dr' W r, -W r]
+                Wd = (W @ dr[:, :, None])[..., 0]                             # (k, 2)
+                Wr = (W @ r[:, :, None])[..., 0]
+                JWJ = np.empty((len(h_), 3, 3))
+                JWJ[:, 0, 0] = (dr * Wd).sum(axis=1)
+                JWJ[:, 0, 1:] = JWJ[:, 1:, 0] = -Wd
+                JWJ[:, 1:, 1:] = W
+                JWr = np.column_stack([(dr * Wr).sum(axis=1), -Wr])
+                first = np.flatnonzero(np.r_[True, h_[1:] != h_[:-1]])      # h_ ascends (C order)
+                hs = h_[first]
+                Hm[hs] += np.add.reduceat(JWJ, first, axis=0)
+                g[hs] += np.add.reduceat(JWr, first, axis=0)
         if use_bg:
             gate = cfg.bg_gate_start_m + (cfg.bg_gate_end_m - cfg.bg_gate_start_m) * it / max(cfg.iterations - 1, 1)
-            moved = np.einsum("hij,nj->hni", Rm, bg_other) + t_a[:, None]        # (h, N, 2)
+            rot = bg_other @ Rm.transpose(0, 2, 1)                                # R p, (h, N, 2)
+            moved = rot + t_a[:, None]
             d, k = tree.query(moved.reshape(-1, 2), distance_upper_bound=gate)
             d, k = d.reshape(n_a, -1), k.reshape(n_a, -1)
             ok = np.isfinite(d)
@@ -123,9 +137,7 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
             ok &= (d <= cut[:, None]) & (cnt[:, None] >= 3)
             q = tree.data[np.where(ok, k, 0)]
             r = np.where(ok[..., None], q - moved, 0.0)                          # (H, N, 2)
-            w = cfg.bg_weight_total / len(bg_other) / cfg.bg_sigma_m ** 2
-            perp = -np.einsum("hij,nj->hni", Rm, np.column_stack([-bg_other[:, 1], bg_other[:, 0]]))
-            perp = np.where(ok[..., None], perp, 0.0)
+            perp = np.where(ok[..., None], np.stack([rot[..., 1], -rot[..., 0]], axis=-1), 0.0)   # -d(R p)/dyaw
             n_ok = ok.sum(axis=1).astype(float)
             Hm[:, 0, 0] += w * (perp ** 2).sum(axis=(1, 2))
             Hm[:, 0, 1] -= w * perp[..., 0].sum(axis=1)
@@ -155,3 +167,12 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
         if not active.any():
             break
     return _rots(yaw), t
+
+
+def _inv2(S: np.ndarray) -> np.ndarray:
+    """Inverses of (k, 2, 2) matrices."""
+    a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
+    det = a * d - b * c
+    out = np.empty_like(S)
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = d / det, -b / det, -c / det, a / det
+    return out
