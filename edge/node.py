@@ -408,6 +408,8 @@ class Node:
         self.last_result = msg
         if self.on_result is not None:
             self.on_result(msg)
+        if self.pipeline.idle is not None:   # after the result is out: costs the next frame nothing it needs
+            self.pipeline.idle()
         return msg
 
     def summary(self) -> dict[str, Any]:

@@ -22,13 +22,16 @@ class Pipeline:
     -> (SharedFrame, {stage: ms}); encode(SharedFrame) -> bytes; decode(bytes) -> SharedFrame
     (raises DecodeError); fuse(own, other | None) -> FusionResult; track_objects(own,
     [(other, FusionResult), ...]) -> ObjectFrame | None, once per Ego frame after fusing every
-    CAV (None: objects are not tracked)."""
+    CAV (None: objects are not tracked); idle() -> int, once per Ego frame after its result is
+    published: work fusion deferred past the frame's latency (the tracker's regular full
+    search; None: nothing to do)."""
 
     process_view: Callable[..., tuple[Any, dict[str, float]]]
     encode: Callable[[Any], bytes]
     decode: Callable[[bytes], Any]
     fuse: Callable[..., Any]
     track_objects: Callable[..., Any] | None = None
+    idle: Callable[[], Any] | None = None
 
 
 def _get(module: str, name: str) -> Callable:
@@ -57,7 +60,7 @@ def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0,
         if not isinstance(pipe, Pipeline):
             raise MMatchError(f"pipeline: $MMATCH_PIPELINE={override!r} is not a Pipeline")
         return pipe
-    fuse, track_objects = _no_fuse, None
+    fuse, track_objects, idle = _no_fuse, None, None
     if need_fuse:
         fuser, fusion_config = _get("mmatch.fusion", "Fuser"), _get("mmatch.fusion", "FusionConfig")
         track_config = _get("mmatch.ego.track", "TrackConfig")
@@ -67,9 +70,10 @@ def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0,
                                   confidence=confidence_config(threshold=thr)))
         fuse = one.fuse
         track_objects = one.track_objects if track_max_age_s > 0 else None
+        idle = one.run_deferred
     return Pipeline(process_view=_get("mmatch.cav.process", "process_view"),
                     encode=_get("mmatch.codec", "encode"), decode=_get("mmatch.codec", "decode"),
-                    fuse=fuse, track_objects=track_objects)
+                    fuse=fuse, track_objects=track_objects, idle=idle)
 
 
 def _no_fuse(*a: Any, **k: Any) -> Any:

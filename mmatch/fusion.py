@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import copy
 import time
 from dataclasses import dataclass, field, replace
 
@@ -101,22 +102,42 @@ class Fuser:
         self._threshold = threshold(config.confidence)
         self._extra = config.extra_hypotheses if config.extra_hypotheses is not None else \
             (OWN_EXTRA_HYPOTHESES if config.aligner == DEFAULT_ALIGNER else 0)
+        self._deferred: list[tuple[SharedFrame, SharedFrame, MatchContext | None, Prediction]] = []
 
     def fuse(self, own: SharedFrame, other: SharedFrame | None,
              context: MatchContext | None = None) -> FusionResult:
+        self.run_deferred()
         own_objs = _objects(far_side_centres(own), SOURCE_OWN)
         if other is None:
             return FusionResult("single", "no CAV frame", objects=own_objs)
         pred = self.tracker.predict(own, other)
+        return self._run(own, other, context, pred, own_objs, defer=self.config.track.defer_search)
+
+    def run_deferred(self) -> int:
+        """Run the full searches that fusion deferred (TrackConfig.defer_search); returns how
+        many. The vehicle service calls this once a frame's results are published; `fuse` calls
+        it first, so a caller that never does gets the same results, only later."""
+        done, self._deferred = self._deferred, []
+        for own, other, context, pred in done:
+            self._run(own, other, context, pred, _objects(far_side_centres(own), SOURCE_OWN), defer=False)
+        return len(done)
+
+    def _run(self, own: SharedFrame, other: SharedFrame, context: MatchContext | None, pred: Prediction,
+             own_objs: np.ndarray, defer: bool) -> FusionResult:
         with observations_shared(), (without_heading_prior() if pred.manoeuvre else contextlib.nullcontext()):
             # a vehicle turning (manoeuvre): its velocity tells no road direction
-            return self._fuse_predicted(own, other, context, pred, own_objs)
+            return self._fuse_predicted(own, other, context, pred, own_objs, defer)
 
     def _fuse_predicted(self, own: SharedFrame, other: SharedFrame, context: MatchContext | None,
-                        pred: Prediction, own_objs: np.ndarray) -> FusionResult:
-        """`fuse` once the track (if any) is predicted to this frame pair."""
+                        pred: Prediction, own_objs: np.ndarray, defer: bool = False) -> FusionResult:
+        """`fuse` once the track (if any) is predicted to this frame pair; defer: a regular full
+        search of a believed track is left for `run_deferred` (this frame refines the prediction)."""
         quick = pred.prior_T is not None and self.tracker.tracking_only(pred)
         no_vehicles = own.num_vehicles == 0 or other.num_vehicles == 0
+        if defer and not quick and not no_vehicles and pred.prior_T is not None and self.tracker.search_due(pred):
+            # the search starts from this prediction, not from the refinement committed below
+            self._deferred.append((own, other, context, copy.deepcopy(pred)))
+            quick = True
         # a full search does not see the track, so its candidates are evidence of their own;
         # a frame with nothing to match refines the prediction on the backgrounds
         predicted = pred.prior_T if quick or no_vehicles else None

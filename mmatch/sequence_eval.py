@@ -130,6 +130,7 @@ def evaluate_sequence(files: list[str], cfg: SequenceEvalConfig = SequenceEvalCo
                     res["tracks"] = [track_record(t, float(own.stamp)) for t in objects.tracks]
                 if on_frame is not None:
                     on_frame(scene, mode, result)
+                fusers[mode].run_deferred()   # after the frame, as the vehicle service does
             res.update(file=path, sequence=scene.meta["sequence"], frame=int(scene.meta["frame"]),
                        stamp=float(scene.ego.stamp))
             out[mode].append(res)

@@ -146,6 +146,35 @@ def test_full_searches_come_back_regularly_while_tracking():
     assert "qqq" not in runs                                     # never more than 2 tracking frames in a row
 
 
+def test_the_regular_search_runs_after_the_frame_and_a_caller_that_never_asks_gets_the_same():
+    """A believed track's regular full search is deferred (TrackConfig.defer_search): the frame
+    publishes its refined prediction, `run_deferred` then searches from the same prediction and
+    resets the count; `fuse` runs what is left first, so results do not depend on the call."""
+    from dataclasses import replace
+
+    w = World()
+    cfg = TrackConfig(max_age_s=2.0, full_search_every=3)
+    eager, lazy = Fuser(FusionConfig(track=cfg)), Fuser(FusionConfig(track=cfg))
+    inline = Fuser(FusionConfig(track=replace(cfg, defer_search=False)))
+    deferred = []
+    for k in range(12):
+        t = 3.0 + 0.05 * k
+        own, oth = w.frame("ego", t + 0.02, True), w.frame("cav", t, True)
+        a, b, c = eager.fuse(own, oth), lazy.fuse(own, oth), inline.fuse(own, oth)
+        assert a.status == b.status == c.status
+        if a.status == "fused":
+            assert np.array_equal(a.T_ego_cav, b.T_ego_cav)
+            truth = w.truth(t + 0.02, t)
+            for r in (a, c):
+                assert rte_m(truth, r.T_ego_cav) < 1.0 and rre_deg(truth, r.T_ego_cav) < 2.0
+        n = eager.run_deferred()
+        deferred.append(n)
+        if n:
+            assert eager.tracker.track("cav").since_full == 1
+    assert sum(deferred) >= 3 and max(deferred) == 1
+    assert lazy.run_deferred() == deferred[-1]
+
+
 def test_a_turning_radar_is_a_manoeuvre_that_searches_and_loosens_the_yaw_rate():
     """A radar ahead of the rear axle sees its velocity swing sideways when its vehicle starts to
     turn: the next frame searches globally, without the road-direction prior, and the turning

@@ -34,10 +34,16 @@ class TrackConfig:
     frame then searches globally and that vehicle's yaw rate is made uncertain by
     manoeuvre_yaw_rate_sigma (rad/s): the constant-yaw-rate prediction no longer holds, and a
     refinement seeded by it would follow it;
+    defer_search: the regular full search of a believed track runs after the frame's result
+    (`Fuser.run_deferred`, which the vehicle service calls once it has published): that frame
+    publishes the refined prediction as any tracking frame, and the search's candidates then
+    update the track from the same prediction (in place of that refinement), so the next
+    frame sees what the search found and no frame waits for it;
     filter: the pose filter's noise, gates and belief (ego/track/filter.py)."""
 
     max_age_s: float = 2.0
     full_search_every: int = 10
+    defer_search: bool = True
     quick_belief: float = 0.9
     quick_fit: float = 0.3
     agree_m: float = 2.0
@@ -127,6 +133,15 @@ class Tracker:
         best = tr.best() if tr is not None else None
         return (best is not None and best.belief >= self.cfg.quick_belief and not pred.manoeuvre
                 and 0 < tr.since_full < self.cfg.full_search_every)
+
+    def search_due(self, pred: Prediction) -> bool:
+        """Whether this frame is a believed track's regular full search (`tracking_only` but for
+        the full_search_every frames since the last one): the one kind of search that may be
+        deferred (TrackConfig.defer_search)."""
+        tr = pred.track
+        best = tr.best() if tr is not None else None
+        return (best is not None and best.belief >= self.cfg.quick_belief and not pred.manoeuvre
+                and tr.since_full >= self.cfg.full_search_every)
 
     def commit(self, own: SharedFrame, other: SharedFrame, pred: Prediction, candidates: list[Candidate],
                full_search: bool) -> tuple[Hypothesis | None, bool]:
