@@ -125,7 +125,7 @@ def _agreement(A, B, pairs, R, t, bg_other, tree, cfg) -> np.ndarray:
         dm = mahalanobis(A, B, R, t)[:, pairs[:, 0], pairs[:, 1]]
         s += np.clip(1 - dm / 3.0, 0, None).sum(axis=1)
     if tree is not None and len(bg_other):
-        moved = np.einsum("hab,nb->hna", R, bg_other) + t[:, None]
+        moved = bg_other @ R.transpose(0, 2, 1) + t[:, None]
         d, _ = tree.query(moved.reshape(-1, 2), distance_upper_bound=cfg.score_gate_m)
         s += 3.0 * np.isfinite(d).reshape(len(R), -1).mean(axis=1)
     return s

@@ -263,7 +263,7 @@ def _single_pair_hypotheses(A, B, cand, yaws):
     Rk = _yaw_rotations(yaws)                                                   # (4, 2, 2)
     R = np.repeat(Rk[None], len(cand), 0).reshape(-1, 2, 2)
     Bj = np.repeat(B[cand[:, 1]], len(yaws), 0)
-    t = np.repeat(A[cand[:, 0]], len(yaws), 0) - np.einsum("hij,hj->hi", R, Bj)
+    t = np.repeat(A[cand[:, 0]], len(yaws), 0) - (R @ Bj[:, :, None])[..., 0]
     return R, t
 
 
@@ -276,8 +276,8 @@ def _sighting_hypotheses(A, B, yaws, body_offset_m):
     R B[m] + t = (0, -offset)."""
     Rk = _yaw_rotations(yaws)                                                   # (Y, 2, 2)
     body = np.array([0.0, -body_offset_m])
-    t_a = A[:, None] - np.einsum("yij,j->yi", Rk, body)[None]                   # (Va, Y, 2)
-    t_b = body - np.einsum("yij,vj->vyi", Rk, B)                                # (Vb, Y, 2)
+    t_a = A[:, None] - (Rk @ body)[None]                                        # (Va, Y, 2)
+    t_b = body - (B @ Rk.transpose(0, 2, 1)).transpose(1, 0, 2)                # (Vb, Y, 2)
     t = np.concatenate([t_a.reshape(-1, 2), t_b.reshape(-1, 2)])
     R = np.tile(Rk, (len(A) + len(B), 1, 1))
     return R, t
@@ -329,7 +329,7 @@ def _pair_hypotheses(A, B, cand, cfg, cost, most):
     c, s = np.cos(ang), np.sin(ang)
     R = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], 1)
     mid_a, mid_b = (A[i] + A[k]) / 2, (B[j] + B[l]) / 2
-    t = mid_a - np.einsum("hij,hj->hi", R, mid_b)
+    t = mid_a - (R @ mid_b[:, :, None])[..., 0]
     return R, t
 
 
@@ -361,11 +361,11 @@ def _vehicle_scores_chunk(A, B, alike, R, t, cfg):
     close = np.clip(1 - dist / cfg.gate_sigma, 0, None)
     score = (close * np.clip(0.5 + alike, 0, None)).max(axis=2).sum(axis=1)
     Ac, Bc = A.centres, B.centres
-    Bt = np.einsum("hij,vj->hvi", R, Bc) + t[:, None]                  # (H, Vb, 2) other vehicles, own frame
+    Bt = Bc @ R.transpose(0, 2, 1) + t[:, None]                        # (H, Vb, 2) other vehicles, own frame
     body = np.array([0.0, -cfg.body_offset_m])
-    cav_body = np.einsum("hij,j->hi", R, body) + t                     # (H, 2) other vehicle's centre, own frame
-    A_in_cav = np.einsum("hji,hvj->hvi", R, Ac[None] - t[:, None])     # (H, Va, 2) own vehicles, other frame
-    ego_body_in_cav = np.einsum("hji,hj->hi", R, body[None] - t)       # (H, 2)
+    cav_body = R @ body + t                                            # (H, 2) other vehicle's centre, own frame
+    A_in_cav = (Ac[None] - t[:, None]) @ R                             # (H, Va, 2) own vehicles, other frame
+    ego_body_in_cav = ((body[None] - t)[:, None] @ R)[:, 0]            # (H, 2)
     a_is_cav = np.linalg.norm(Ac[None] - cav_body[:, None], axis=2) < cfg.sighting_m
     b_is_ego = np.linalg.norm(Bt - body, axis=2) < cfg.sighting_m
     a_unpaired = dist.min(axis=2) > cfg.gate_sigma
@@ -386,7 +386,7 @@ def _background_scores(bg_own, bg_other, R, t, cfg, tree=None):
     if len(src) > cfg.background_points:
         src = src[rng.choice(len(src), cfg.background_points, replace=False)]
     tree = tree or cKDTree(bg_own)
-    moved = np.einsum("hij,nj->hni", R, src) + t[:, None]
+    moved = src @ R.transpose(0, 2, 1) + t[:, None]
     d, _ = tree.query(moved.reshape(-1, 2), distance_upper_bound=cfg.background_gate_m)
     d = d.reshape(len(R), -1)
     hit = np.exp(-0.5 * (d / cfg.background_sigma_m) ** 2) if cfg.background_sigma_m > 0 else np.isfinite(d)
