@@ -228,7 +228,5 @@ def mahalanobis(A: Observations | PairedObservations, B: Observations | None, R:
     Va, Vb = P.Va, P.Vb
     q = _maha_sq(P.ca, P.Sa, P.cb, P.Sb, R, t) + P.pen
     q = q.reshape(len(R), 2, Va, 2, Vb).transpose(0, 2, 4, 1, 3).reshape(len(R), Va, Vb, 4)
-    mode = q.argmin(axis=3)                                            # 2 * own mode + other mode
-    best = np.take_along_axis(q, mode[..., None], axis=3)[..., 0]
-    d = np.sqrt(np.maximum(best, 0.0))
-    return (d, mode.astype(np.int8)) if with_modes else d
+    d = np.sqrt(np.maximum(q.min(axis=3), 0.0))
+    return (d, q.argmin(axis=3).astype(np.int8)) if with_modes else d   # mode: 2 * own mode + other mode

@@ -98,11 +98,11 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
             dm, mode = mahalanobis(AB, None, Rm, t_a, with_modes=True)
             dm = np.where(ok_pair[None], dm, np.inf)
             j = dm.argmin(axis=2)                                 # (H, Va)
-            i = np.broadcast_to(np.arange(dm.shape[1]), j.shape)
-            hh = np.broadcast_to(np.arange(n_a)[:, None], j.shape)
             back = dm.argmin(axis=1)                              # (H, Vb)
-            mutual = (np.take_along_axis(back, j, axis=1) == i) & (dm[hh, i, j] < cfg.vehicle_gate)
-            h_, a_, b_ = hh[mutual], i[mutual], j[mutual]
+            mutual = (np.take_along_axis(back, j, axis=1) == np.arange(dm.shape[1])) \
+                & (dm.min(axis=2) < cfg.vehicle_gate)
+            h_, a_ = np.nonzero(mutual)                           # h_ ascends (C order)
+            b_ = j[h_, a_]
             if len(h_):
                 m_ = mode[h_, a_, b_]
                 ca, Sa = CA[m_ // 2, a_], SA[m_ // 2, a_]
@@ -120,7 +120,7 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
                 JWJ[:, 0, 1:] = JWJ[:, 1:, 0] = -Wd
                 JWJ[:, 1:, 1:] = W
                 JWr = np.column_stack([(dr * Wr).sum(axis=1), -Wr])
-                first = np.flatnonzero(np.r_[True, h_[1:] != h_[:-1]])      # h_ ascends (C order)
+                first = np.flatnonzero(np.concatenate([[True], h_[1:] != h_[:-1]]))
                 hs = h_[first]
                 Hm[hs] += np.add.reduceat(JWJ, first, axis=0)
                 g[hs] += np.add.reduceat(JWr, first, axis=0)
