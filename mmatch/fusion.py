@@ -106,18 +106,20 @@ class Fuser:
 
     def fuse(self, own: SharedFrame, other: SharedFrame | None,
              context: MatchContext | None = None) -> FusionResult:
-        self.run_deferred()
         own_objs = _objects(far_side_centres(own), SOURCE_OWN)
         if other is None:
             return FusionResult("single", "no CAV frame", objects=own_objs)
+        self.run_deferred(other.sender)          # this CAV's track must have seen its search
         pred = self.tracker.predict(own, other)
         return self._run(own, other, context, pred, own_objs, defer=self.config.track.defer_search)
 
-    def run_deferred(self) -> int:
-        """Run the full searches that fusion deferred (TrackConfig.defer_search); returns how
-        many. The vehicle service calls this once a frame's results are published; `fuse` calls
-        it first, so a caller that never does gets the same results, only later."""
-        done, self._deferred = self._deferred, []
+    def run_deferred(self, sender: str | None = None) -> int:
+        """Run the full searches that fusion deferred (TrackConfig.defer_search), of one CAV or
+        of all (None); returns how many. The vehicle service calls this once a frame's results
+        are published; `fuse` calls it first for its CAV, so a caller that never does gets the
+        same results, only later (and a second CAV's fusion never waits for the first's)."""
+        done = [d for d in self._deferred if sender is None or d[1].sender == sender]
+        self._deferred = [d for d in self._deferred if not (sender is None or d[1].sender == sender)]
         for own, other, context, pred in done:
             self._run(own, other, context, pred, _objects(far_side_centres(own), SOURCE_OWN), defer=False)
         return len(done)

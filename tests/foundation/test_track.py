@@ -175,6 +175,22 @@ def test_the_regular_search_runs_after_the_frame_and_a_caller_that_never_asks_ge
     assert lazy.run_deferred() == deferred[-1]
 
 
+def test_a_second_cav_does_not_wait_for_the_first_ones_deferred_search():
+    from dataclasses import replace
+
+    w = World()
+    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, full_search_every=3)))
+    pending = []
+    for k in range(8):
+        t = 3.0 + 0.05 * k
+        own, oth = w.frame("ego", t + 0.02, True), w.frame("cav", t, True)
+        fuser.fuse(own, oth)
+        fuser.fuse(own, replace(oth, sender="cav2"))        # the same view from a second CAV
+        pending.append(fuser.run_deferred("cav"))            # still there after cav2's fusion
+        fuser.run_deferred()
+    assert sum(pending) >= 2
+
+
 def test_a_turning_radar_is_a_manoeuvre_that_searches_and_loosens_the_yaw_rate():
     """A radar ahead of the rear axle sees its velocity swing sideways when its vehicle starts to
     turn: the next frame searches globally, without the road-direction prior, and the turning

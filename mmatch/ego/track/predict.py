@@ -129,19 +129,23 @@ class Tracker:
         """Whether this frame may skip the global search and only refine the prediction: a
         believed track, a full search less than full_search_every frames ago, and the last
         tracking frame fell in the track."""
-        tr = pred.track
-        best = tr.best() if tr is not None else None
-        return (best is not None and best.belief >= self.cfg.quick_belief and not pred.manoeuvre
-                and 0 < tr.since_full < self.cfg.full_search_every)
+        tr = self._believed(pred)
+        return tr is not None and 0 < tr.since_full < self.cfg.full_search_every
 
     def search_due(self, pred: Prediction) -> bool:
         """Whether this frame is a believed track's regular full search (`tracking_only` but for
         the full_search_every frames since the last one): the one kind of search that may be
         deferred (TrackConfig.defer_search)."""
+        tr = self._believed(pred)
+        return tr is not None and tr.since_full >= self.cfg.full_search_every
+
+    def _believed(self, pred: Prediction) -> PoseTrack | None:
+        """The predicted track when its best hypothesis is believed at least quick_belief and
+        no radar is manoeuvring, else None."""
         tr = pred.track
         best = tr.best() if tr is not None else None
-        return (best is not None and best.belief >= self.cfg.quick_belief and not pred.manoeuvre
-                and tr.since_full >= self.cfg.full_search_every)
+        ok = best is not None and best.belief >= self.cfg.quick_belief and not pred.manoeuvre
+        return tr if ok else None
 
     def commit(self, own: SharedFrame, other: SharedFrame, pred: Prediction, candidates: list[Candidate],
                full_search: bool) -> tuple[Hypothesis | None, bool]:
