@@ -66,6 +66,12 @@ class World:
         v = self.v_ego if who == "ego" else self.v_cav
         return _frame(who, t, v, cars, bg)
 
+    def drive(self, n: int, t0: float = 3.0):
+        """n frame pairs at 20 Hz, the Ego capturing 20 ms after the CAV: (t, own, other)."""
+        for k in range(n):
+            t = t0 + 0.05 * k
+            yield t, self.frame("ego", t + 0.02, True), self.frame("cav", t, True)
+
 
 def _commit(tr: Tracker, own: SharedFrame, oth: SharedFrame, T: np.ndarray, p: float = 0.9):
     pred = tr.predict(own, oth)
@@ -130,9 +136,7 @@ def test_full_searches_come_back_regularly_while_tracking():
     w = World()
     fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, full_search_every=3)))
     quick = []
-    for k in range(9):
-        t = 3.0 + 0.05 * k
-        own, oth = w.frame("ego", t + 0.02, True), w.frame("cav", t, True)
+    for k, (t, own, oth) in enumerate(w.drive(9)):
         quick.append(fuser.tracker.tracking_only(fuser.tracker.predict(own, oth)))
         res = fuser.fuse(own, oth)
         truth = w.truth(t + 0.02, t)
@@ -157,9 +161,7 @@ def test_the_regular_search_runs_after_the_frame_and_a_caller_that_never_asks_ge
     eager, lazy = Fuser(FusionConfig(track=cfg)), Fuser(FusionConfig(track=cfg))
     inline = Fuser(FusionConfig(track=replace(cfg, defer_search=False)))
     deferred = []
-    for k in range(12):
-        t = 3.0 + 0.05 * k
-        own, oth = w.frame("ego", t + 0.02, True), w.frame("cav", t, True)
+    for t, own, oth in w.drive(12):
         a, b, c = eager.fuse(own, oth), lazy.fuse(own, oth), inline.fuse(own, oth)
         assert a.status == b.status == c.status
         if a.status == "fused":
@@ -181,9 +183,7 @@ def test_a_second_cav_does_not_wait_for_the_first_ones_deferred_search():
     w = World()
     fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, full_search_every=3)))
     pending = []
-    for k in range(8):
-        t = 3.0 + 0.05 * k
-        own, oth = w.frame("ego", t + 0.02, True), w.frame("cav", t, True)
+    for _, own, oth in w.drive(8):
         fuser.fuse(own, oth)
         fuser.fuse(own, replace(oth, sender="cav2"))        # the same view from a second CAV
         pending.append(fuser.run_deferred("cav"))            # still there after cav2's fusion
