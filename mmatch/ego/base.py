@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mmatch.ego.memo import memo
 from mmatch.shared import SharedFrame
 
 
@@ -109,6 +110,10 @@ def far_side_centres(frame: SharedFrame, shift_m: float = 1.4) -> np.ndarray:
 
 def descriptor_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(Va, Vb) Hellinger distance between 32-bin descriptors, averaged over the H, S, V groups (0-1)."""
+    return memo("descriptor_distance", (a, b), lambda: _descriptor_distance(a, b))
+
+
+def _descriptor_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if len(a) == 0 or len(b) == 0:
         return np.zeros((len(a), len(b)))
     sa, sb = np.sqrt(np.clip(a, 0, None)), np.sqrt(np.clip(b, 0, None))
@@ -170,6 +175,10 @@ def radial_ground_speeds(frame: SharedFrame) -> tuple[np.ndarray, np.ndarray]:
     returns spread between standstill and twice the body speed). NaN for vehicles without
     points or when the sender has no ego-motion estimate.
     """
+    return memo("radial_ground_speeds", (frame,), lambda: _radial_ground_speeds(frame))
+
+
+def _radial_ground_speeds(frame: SharedFrame) -> tuple[np.ndarray, np.ndarray]:
     V = frame.num_vehicles
     g = np.full(V, np.nan)
     u_mean = np.full((V, 2), np.nan)
@@ -218,6 +227,12 @@ def road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float 
     tol_mps (+10 %), inconsistent (-1) when none does, and 0 when no direction is
     observable in both. None without ego-motion estimates.
     """
+    return memo("road_speed_consistency", (own, other),
+                lambda: _road_speed_consistency(own, other, min_cos, tol_mps), min_cos, tol_mps, _HEADING_PRIOR.get())
+
+
+def _road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float,
+                            tol_mps: float) -> np.ndarray | None:
     if heading_yaws(own, other) is None:
         return None
     ge, ue = radial_ground_speeds(own)

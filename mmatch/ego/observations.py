@@ -20,13 +20,13 @@ Frames: the sender's radar frame (x right, y forward), metres.
 from __future__ import annotations
 
 import contextlib
-import contextvars
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from mmatch.ego.base import far_side_centres, point_counts
+from mmatch.ego.memo import memo, shared_block
 from mmatch.shared import SharedFrame
 
 
@@ -115,35 +115,20 @@ def _on_camera_ray(c: np.ndarray, cov: np.ndarray, cam: np.ndarray, has: np.ndar
     return c, cov
 
 
-_MEMO: contextvars.ContextVar[dict | None] = contextvars.ContextVar("observations_memo", default=None)
-
-
 @contextlib.contextmanager
 def observations_shared() -> Iterator[None]:
-    """Within this block `observe` computes each (frame, model) once: the matcher, the aligner
-    and the confidence model of one fusion observe the same two frames (eight calls a frame
-    pair otherwise; 1.5 ms of 20 at 40 vehicles a view). The frames must not change inside the
-    block; the shared arrays are read-only."""
-    token = _MEMO.set({})
-    try:
+    """Within this block `observe` computes each (frame, model) once, as do the other per-frame
+    pair quantities of ego/memo.py: the matcher, the aligner and the confidence model of one
+    fusion observe the same two frames (eight calls a frame pair otherwise; 1.5 ms of 20 at 40
+    vehicles a view). The frames must not change inside the block; the shared arrays are
+    read-only."""
+    with shared_block():
         yield
-    finally:
-        _MEMO.reset(token)
 
 
 def observe(frame: SharedFrame, model: ObservationModel = ObservationModel()) -> Observations:
     """Centres and line-of-sight covariances of a frame's vehicles (both estimates)."""
-    memo = _MEMO.get()
-    if memo is None:
-        return _observe(frame, model)
-    key = (id(frame), model)
-    hit = memo.get(key)
-    if hit is None or hit[0] is not frame:
-        obs = _observe(frame, model)
-        for a in (obs.centres, obs.cov, obs.cam_centres, obs.cam_cov, obs.cam_penalty):
-            a.flags.writeable = False
-        hit = memo[key] = (frame, obs)
-    return hit[1]
+    return memo("observe", (frame,), lambda: _observe(frame, model), model)
 
 
 def _observe(frame: SharedFrame, model: ObservationModel) -> Observations:
