@@ -118,8 +118,9 @@ class Fuser:
         of all (None); returns how many. The vehicle service calls this once a frame's results
         are published; `fuse` calls it first for its CAV, so a caller that never does gets the
         same results, only later (and a second CAV's fusion never waits for the first's)."""
-        done = [d for d in self._deferred if sender is None or d[1].sender == sender]
-        self._deferred = [d for d in self._deferred if not (sender is None or d[1].sender == sender)]
+        mine = [sender is None or other.sender == sender for _, other, _, _ in self._deferred]
+        done = [d for d, m in zip(self._deferred, mine) if m]
+        self._deferred = [d for d, m in zip(self._deferred, mine) if not m]
         for own, other, context, pred in done:
             self._run(own, other, context, pred, _objects(far_side_centres(own), SOURCE_OWN), defer=False)
         return len(done)

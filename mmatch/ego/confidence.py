@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 
 from mmatch.ego.base import Hypotheses, MatchResult, heading_yaws, point_counts, radial_ground_speeds
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
+from mmatch.ego.rigid import inv2
 from mmatch.errors import ConfigError
 from mmatch.shared import SharedFrame
 
@@ -320,19 +321,10 @@ def _pair_information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.
         Rh = R[:, None]
         S = A.cov[i][None] + Rh @ B.cov[j][None] @ Rh.transpose(0, 1, 3, 2)     # (H, P, 2, 2)
         Jy = np.column_stack([-b[:, 1], b[:, 0]]) @ R.transpose(0, 2, 1)        # (H, P, 2)
-        info += _information_sum(Jy, _inv2(S))
+        info += _information_sum(Jy, inv2(S))
         pair_chi2 = np.mean(dm ** 2, axis=1)
         chi2 = np.sum(np.minimum(dm ** 2, 25.0), axis=1)
     return info, chi2, 2.0 * len(pairs), pair_chi2
-
-
-def _inv2(S: np.ndarray) -> np.ndarray:
-    """Inverses of (..., 2, 2) matrices (explicit: np.linalg.inv costs more on small batches)."""
-    a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
-    det = a * d - b * c
-    out = np.empty_like(S)
-    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = d / det, -b / det, -c / det, a / det
-    return out
 
 
 def _information_sum(Jy: np.ndarray, P: np.ndarray) -> np.ndarray:

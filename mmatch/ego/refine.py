@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mmatch.ego.observations import Observations, mahalanobis, paired
+from mmatch.ego.rigid import inv2
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,7 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
                 rb = (Rk @ cb[:, :, None])[..., 0]                            # R b, (k, 2)
                 r = ca - (rb + t_a[h_])
                 dr = np.column_stack([rb[:, 1], -rb[:, 0]])                   # -d(R b)/dyaw
-                W = _inv2(Sa + Rk @ Sb @ Rk.transpose(0, 2, 1))
+                W = inv2(Sa + Rk @ Sb @ Rk.transpose(0, 2, 1))
                 # J = [dr | -I]: J^T W J = [[dr' W dr, -dr' W], [-W dr, W]], J^T W r = [dr' W r, -W r]
                 Wd = (W @ dr[:, :, None])[..., 0]                             # (k, 2)
                 Wr = (W @ r[:, :, None])[..., 0]
@@ -168,11 +169,3 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
             break
     return _rots(yaw), t
 
-
-def _inv2(S: np.ndarray) -> np.ndarray:
-    """Inverses of (k, 2, 2) matrices."""
-    a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
-    det = a * d - b * c
-    out = np.empty_like(S)
-    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = d / det, -b / det, -c / det, a / det
-    return out

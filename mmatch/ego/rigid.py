@@ -84,6 +84,15 @@ def icp2d(src: np.ndarray, dst: np.ndarray, R: np.ndarray, t: np.ndarray, max_di
     return R, t, inlier
 
 
+def inv2(S: np.ndarray) -> np.ndarray:
+    """Inverses of (..., 2, 2) matrices, explicitly (np.linalg.inv costs more on small batches)."""
+    a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
+    det = a * d - b * c
+    out = np.empty_like(S)
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = d / det, -b / det, -c / det, a / det
+    return out
+
+
 def yaw_of(T: np.ndarray) -> float:
     """Yaw (rad) of a 4x4 or 2x2 rotation."""
     return float(np.arctan2(T[1, 0], T[0, 0]))
