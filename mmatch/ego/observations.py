@@ -164,7 +164,12 @@ class PairedObservations:
 
 
 def paired(A: Observations, B: Observations) -> PairedObservations:
-    """The per-pair part of `mahalanobis`, for calling it on many hypotheses."""
+    """The per-pair part of `mahalanobis`, for calling it on many hypotheses (once per fusion
+    inside `observations_shared`)."""
+    return memo("paired", (A, B), lambda: _paired(A, B))
+
+
+def _paired(A: Observations, B: Observations) -> PairedObservations:
     f = np.float32
     Va, Vb = len(A.centres), len(B.centres)
     pen_a = np.concatenate([np.zeros(Va), A.cam_penalty])
