@@ -76,10 +76,10 @@ class Attacker(threading.Thread):
 
     def run(self) -> None:
         # a real attacker sends from its own machine: its frames reach the Ego, its CPU does not.
-        # On one 2-core box the Python that makes 1000 frames/s takes half a core; at nice 10 it
+        # On one 2-core box the Python that makes 1000 frames/s takes half a core; at nice 5 it
         # yields the CPU to the vehicles (it still sends its 1000/s: `sent` is checked below)
         try:
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 5)
         except (AttributeError, OSError):      # not Linux, or not allowed
             pass
         key = keys.shared("cav1")
