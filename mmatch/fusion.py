@@ -10,8 +10,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres, without_heading_prior
-from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, threshold
-from mmatch.ego.observations import observations_shared
+from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, shared_view, threshold
+from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
@@ -223,7 +223,7 @@ class Fuser:
         t0 = time.perf_counter()
         candidates = [Candidate(pose_of(Tc), ac.covariance, float(np.nan_to_num(ac.confidence)))
                       for Tc, ac in cands]
-        hyp, hit = self.tracker.commit(own, other, pred, candidates, full_search)
+        hyp, hit = self.tracker.commit(own, other, pred, candidates, full_search, self._shared_view(own, other, pred))
         timings = dict(timings, track=(time.perf_counter() - t0) * 1e3)
         own_objs = _objects(far_side_centres(own), SOURCE_OWN)
         if hyp is None:
@@ -247,6 +247,18 @@ class Fuser:
                                 refused_T=T, **sure)
         return FusionResult("fused", "" if hit else "tracked", T, pairs, merge_objects(own, other, T, pairs),
                             timings, **sure)
+
+    def _shared_view(self, own: SharedFrame, other: SharedFrame, pred: Prediction) -> list[tuple[float, float]] | None:
+        """(expected, missed) vehicles of the shared view at each predicted hypothesis' pose."""
+        hyps = pred.track.hypotheses if pred.track is not None else []
+        if not hyps:
+            return None
+        x = np.array([h.x[:3] for h in hyps])
+        c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
+        R = np.stack([np.stack([c, -s], axis=1), np.stack([s, c], axis=1)], axis=1)
+        cfg = self.config.confidence
+        expected, missed = shared_view(observe(own, cfg.observation), observe(other, cfg.observation), R, x[:, :2], cfg)
+        return list(zip(expected.tolist(), missed.tolist()))
 
     def _arbitrate(self, own: SharedFrame, other: SharedFrame, match: MatchResult, aligned: AlignResult):
         """The aligner's candidates, and the matcher's best distinct other hypotheses each with

@@ -10,6 +10,10 @@ turns it into the probability that the estimate lies within 2 m / 5 deg of the t
   background's main direction) scored by the matcher's own evidence; its margin;
 - mutual sighting: each vehicle sees the other where the estimate puts it, moving as the
   other's own Doppler ego-motion says;
+- shared view: the vehicles one radar detects where the estimate puts them well inside the
+  other's camera view, with nothing nearer in the way, the other detects too (a slide along
+  a straight road that lays the two views over each other predicts vehicles both should see
+  and the other does not);
 - Doppler: each matched vehicle's radial speeds in the two views are explained by one
   plausible ground velocity (two lines of sight fix it);
 - free space: the other radar's background must not lie where our radar sees through;
@@ -51,6 +55,7 @@ FEATURES: tuple[str, ...] = (
     "n_pairs", "pair_chi2", "margin", "has_alternative", "sighting", "sighting_conflict",
     "doppler_plausible", "doppler_tested", "doppler_heading_deg", "free_space_violation", "bg_overlap",
     "bg_overlap_back", "log_pos_sigma", "log_yaw_sigma", "bg_linearity", "yaw_gap_deg", "n_background",
+    "covisible_missed",
 )
 # which evidence a refusal names when it weighs most against the estimate
 REASONS: dict[str, str] = {
@@ -60,7 +65,7 @@ REASONS: dict[str, str] = {
     "free_space_violation": "poor fit", "bg_overlap": "poor fit",
     "bg_overlap_back": "poor fit", "log_pos_sigma": "symmetric background",
     "log_yaw_sigma": "symmetric background", "bg_linearity": "symmetric background",
-    "yaw_gap_deg": "poor fit", "n_background": "too few vehicles",
+    "yaw_gap_deg": "poor fit", "n_background": "too few vehicles", "covisible_missed": "poor fit",
 }
 
 
@@ -80,7 +85,11 @@ class ConfidenceConfig:
     sighting_speed_mps: how far the radial ground speed of what is seen there may differ
     from the other radar's own (Doppler and ego-motion errors), judged on vehicles of at
     least sighting_speed_points returns (one or two may be wheels); occlusion_half_width_m:
-    a nearer vehicle this close to the line of sight hides what is behind it; max_speed_mps:
+    a nearer vehicle this close to the line of sight hides what is behind it;
+    covisible_margin_deg / covisible_margin_m: how far inside the other's camera view (from
+    its edge, short of its range) a vehicle must lie for the other to be expected to detect
+    it (covisible_missed), and covisible_gate the Mahalanobis distance within which a vehicle
+    of the other view counts as the one it saw; max_speed_mps:
     a ground velocity above this is implausible; min_speed_mps: a slower one has no
     direction to compare with the road's (doppler_heading_deg); slides_m: slide alternatives
     along the background's main direction; inflation: factor on the covariance (None: the
@@ -99,6 +108,9 @@ class ConfidenceConfig:
     sighting_speed_mps: float = 1.5
     sighting_speed_points: int = 3
     occlusion_half_width_m: float = 1.2
+    covisible_margin_deg: float = 5.0
+    covisible_margin_m: float = 15.0
+    covisible_gate: float = 2.0
     camera_half_fov_deg: float = 30.0
     camera_range_m: float = 60.0
     body_offset_m: float = 2.3
@@ -461,6 +473,41 @@ def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarra
     return out, conflict
 
 
+def shared_view(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray,
+                cfg: ConfidenceConfig = ConfidenceConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """What each view should see of the other's vehicles under hypotheses R (H, 2, 2), t (H, 2)
+    (CAV -> Ego): (H,) how many vehicles of either view lie well inside the other's camera
+    view (covisible_margin_deg inside its edge, covisible_margin_m short of its range) and are
+    not hidden behind a nearer vehicle the other detects, and (H,) how many of those the other
+    missed: no vehicle of its view near (within sighting_m, or covisible_gate sigma by the two
+    observations' covariances). A: own observations (Ego frame), B: the other's (CAV frame)."""
+    a, b = A.centres, B.centres
+    H = len(R)
+    if len(a) and len(b):
+        d = mahalanobis(A, B, R, t)                                                # (H, Va, Vb)
+        found_a, found_b = d.min(axis=2) < cfg.covisible_gate, d.min(axis=1) < cfg.covisible_gate
+    else:
+        found_a, found_b = np.zeros((H, len(a)), bool), np.zeros((H, len(b)), bool)
+    half = np.radians(cfg.camera_half_fov_deg - cfg.covisible_margin_deg)
+    expected, missed = np.zeros(H), np.zeros(H)
+    for pts, other, found in (((a[None] - t[:, None]) @ R, b, found_a),
+                              (b[None] @ R.transpose(0, 2, 1) + t[:, None], a, found_b)):
+        if not pts.shape[1]:
+            continue
+        r = np.linalg.norm(pts, axis=2)                                             # (H, V)
+        inside = (r > 4.0) & (r < cfg.camera_range_m - cfg.covisible_margin_m) & \
+            (np.abs(np.arctan2(pts[..., 0], pts[..., 1])) < half)
+        near = found
+        if len(other):
+            flat = pts.reshape(-1, 2)
+            near = near | (np.linalg.norm(flat[:, None] - other[None], axis=2) < cfg.sighting_m).any(axis=1
+                                                                                                     ).reshape(r.shape)
+            inside &= near | ~_occluded(flat, other, cfg).reshape(r.shape)
+        expected += inside.sum(axis=1)
+        missed += (inside & ~near).sum(axis=1)
+    return expected, missed
+
+
 def _occluded(where: np.ndarray, cents: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
     """(H,) whether a detected vehicle (cents (V, 2)) nearer than `where` (H, 2) lies across the
     line of sight to it (within occlusion_half_width_m of the ray at its own range)."""
@@ -565,6 +612,7 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         ev = np.linalg.eigvalsh(C)
         lin = ev[:, 0] / np.maximum(ev[:, 1], 1e-9)
     sighting, conflict = _sighting(ctx, R, t)
+    missed = shared_view(ctx.A, ctx.B, R, t, cfg)[1]
     gap = np.degrees(np.abs(_wrap(_yaw(R)[:, None] - ctx.yaws)).min(axis=1)) if ctx.yaws is not None \
         else np.full(H, 45.0)
     pos = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 1e-9) / max(inflation, 1e-9))
@@ -587,6 +635,7 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         "bg_linearity": lin,
         "yaw_gap_deg": np.minimum(gap, 45.0),
         "n_background": np.full(H, float(np.log1p(min(len(ctx.bg_own), len(ctx.bg_other))))),
+        "covisible_missed": np.minimum(missed, 6.0),
     }
     return np.column_stack([cols[k] for k in FEATURES]), cov, amb
 

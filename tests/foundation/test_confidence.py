@@ -164,3 +164,20 @@ def test_a_pose_that_turns_the_shared_vehicles_velocity_off_the_road_is_marked()
     off = X[:, FEATURES.index("doppler_heading_deg")]
     assert X[0, FEATURES.index("doppler_tested")] == 1.0
     assert off[0] < 1.0 and off[1] > 15.0, off          # half the turn: the CAV's own heading turns too
+
+
+@pytest.mark.parametrize("cav_y, cav_sees, missed", [(-5.0, None, 1.0), (30.0, None, 0.0), (-5.0, 8.0, 0.0),
+                                                     (-5.0, 14.0, 1.0), (-5.0, 25.0, 0.0),
+                                                     (-50.0, None, 0.0)])
+def test_a_vehicle_the_other_should_see_and_does_not_is_counted(cav_y, cav_sees, missed):
+    # the Ego sees a car 20 m ahead; the hypothesis puts the CAV cav_y along the road, looking the
+    # same way: 5 m behind the Ego the car is 25 m ahead of the CAV, well in its view; past the
+    # car (30 m) or beyond its camera's reach (70 m) nothing is expected; a car the CAV sees 8 m
+    # ahead hides it (and is too near the Ego's radar to count), one 14 m ahead hides it too but
+    # stands 9 m ahead of the Ego, which does not see it; one 25 m ahead is the same car
+    v = np.array([0.0, 12.0])
+    own = _seen_from("ego", np.array([0.0, 20.0]), v, v)
+    other = _seen_from("cav", np.array([0.0, cav_sees]), v, v) if cav_sees is not None else \
+        SharedFrame("cav", 0, 0.0, 0.5, ego_velocity=v)
+    X, _, _ = features(PairContext(own, other), np.eye(2)[None], np.array([[0.0, cav_y]]), np.zeros((0, 2), int))
+    assert dict(zip(FEATURES, X[0]))["covisible_missed"] == missed

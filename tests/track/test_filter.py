@@ -7,7 +7,7 @@ import numpy as np
 
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.track.filter import (Candidate, FilterConfig, PoseTrack, motion, new_hypothesis, predict, step, update,
-                                     wrap)
+                                     view_evidence, wrap)
 from mmatch.evaluate import EvalConfig, prepare_scene
 from mmatch.metrics import is_gross, is_success, rre_deg, rte_m
 from mmatch.sequence_eval import SequenceEvalConfig, tracking_fuser
@@ -75,3 +75,25 @@ def test_a_new_track_starts_from_the_surest_of_two_nearby_candidates():
     step(track, [near, surest], 0.05, FilterConfig())
     assert len(track.hypotheses) == 1
     assert np.allclose(track.best().x[:3], surest.z)
+
+
+def test_view_evidence_is_none_without_expectations_and_signed_by_what_was_seen():
+    cfg = FilterConfig()
+    assert view_evidence(0.0, 0.0, cfg) == 0.0
+    assert view_evidence(3.0, 0.0, cfg) > 0.0 > view_evidence(3.0, 2.0, cfg)
+    assert view_evidence(2.0, 2.0, cfg) < view_evidence(2.0, 1.0, cfg)
+
+
+def test_a_hypothesis_whose_views_miss_what_they_should_see_loses_to_one_whose_views_agree():
+    # a slide along a straight road: two hypotheses 44 m apart, equally believed, no candidate
+    # for several frames; under one the other radar sees the vehicles it should, under the
+    # other it misses two of three every frame
+    cov = np.diag([0.3, 0.3, np.radians(1.0) ** 2])
+    right = new_hypothesis(np.array([-10.0, 37.0, 0.0]), cov, 0.7, FilterConfig())
+    wrong = new_hypothesis(np.array([-7.0, -7.0, 0.0]), cov, 0.7, FilterConfig())
+    track = PoseTrack([wrong, right], 0.0, 0.0, np.zeros(2), np.zeros(2))
+    for _ in range(6):
+        views = {id(h): ((2.0, 0.0) if h.x[1] > 0 else (3.0, 2.0)) for h in track.hypotheses}
+        step(track, [], 0.05, FilterConfig(), independent=False, view=[views[id(h)] for h in track.hypotheses])
+    assert track.best().x[1] > 0
+    assert all(h.belief < 0.5 for h in track.hypotheses if h.x[1] < 0)

@@ -148,21 +148,22 @@ class Tracker:
         return tr if ok else None
 
     def commit(self, own: SharedFrame, other: SharedFrame, pred: Prediction, candidates: list[Candidate],
-               full_search: bool) -> tuple[Hypothesis | None, bool]:
+               full_search: bool, view: list[tuple[float, float]] | None = None) -> tuple[Hypothesis | None, bool]:
         """Update the predicted track with the frame's candidates and keep it.
 
         Returns the best hypothesis (None: no track) and whether it took a measurement of this
         frame. full_search: the candidates come from a search that did not know the track
         (evidence for and against its hypotheses); else they refine its prediction. A
         tracking frame whose candidates missed the best hypothesis makes the next frame
-        search globally, as does one whose best fit is less sure than quick_fit.
+        search globally, as does one whose best fit is less sure than quick_fit. view: per
+        predicted hypothesis, the shared-view evidence at its pose (filter.step).
         """
         if not self.enabled:
             return None, False
         track = pred.track
         if track is None:
             track = PoseTrack([], float(own.stamp), float(other.stamp), velocity_of(own), velocity_of(other))
-        hit = step(track, candidates, max(pred.dt_own, 0.0), self.cfg.filter, independent=full_search)
+        hit = step(track, candidates, max(pred.dt_own, 0.0), self.cfg.filter, independent=full_search, view=view)
         track.frames += 1
         if full_search:
             track.since_full = 1
