@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mmatch.sim.realism import check_targets, realism_figures
 from mmatch.sim.scenario import make_scenario
@@ -74,3 +75,41 @@ def test_live_scenario_draws_worlds_both_cameras_share_and_prefetches_the_next()
         assert live._common_detections(prefetched) == live._common_detections(live._build(7))
     finally:
         live.close()
+
+
+def _rays_blocked_brute(origin, targets, seg_a, seg_b, ignore):
+    """Reference for segments_block: every ray against every segment, one at a time."""
+    out = np.zeros(len(targets), bool)
+    for n, p in enumerate(targets):
+        d = p - origin
+        for s, (a, b) in enumerate(zip(seg_a, seg_b)):
+            if ignore is not None and ignore[n, s]:
+                continue
+            e, ao = b - a, a - origin
+            den = d[0] * e[1] - d[1] * e[0]
+            if abs(den) <= 1e-9:
+                continue
+            t = (ao[0] * e[1] - ao[1] * e[0]) / den
+            u = (ao[0] * d[1] - ao[1] * d[0]) / den
+            out[n] |= 1e-6 < t < 1 - 1e-3 and 0 <= u <= 1
+    return out
+
+
+@pytest.mark.parametrize("n_targets", [5, 63, 64, 400])
+def test_segments_block_agrees_with_every_ray_against_every_segment(n_targets):
+    """The bearing pre-filter of many targets may skip no crossing: segments across the
+    -180/180 deg bearing, through the origin, and targets on a segment's end bearings."""
+    from mmatch.sim.geometry import segments_block
+
+    rng = np.random.default_rng(n_targets)
+    origin = np.array([1.5, -2.0])
+    seg_a = np.vstack([rng.uniform(-60, 60, (120, 2)), [[-20.0, 0.5], [-30.0, 3.0], [1.0, -2.5]]])
+    seg_b = np.vstack([seg_a[:120] + rng.normal(0, 4, (120, 2)), [[-20.0, -6.0], [-31.0, -9.0], [2.0, -1.5]]])
+    targets = np.vstack([rng.uniform(-80, 80, (n_targets, 2)),
+                         origin + 2.0 * (seg_a[:10] - origin), origin + 1.5 * (seg_b[:10] - origin)])
+    ignore = rng.random((len(targets), len(seg_a))) < 0.05
+    for ig in (None, ignore):
+        want = _rays_blocked_brute(origin, targets, seg_a, seg_b, ig)
+        got = segments_block(origin, targets, seg_a, seg_b, ig)
+        assert want.any() and not want.all()
+        np.testing.assert_array_equal(got, want)
