@@ -12,7 +12,7 @@ import numpy as np
 from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres, without_heading_prior
 from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, shared_view, threshold
 from mmatch.ego.observations import observations_shared, observe
-from mmatch.ego.rigid import se2_to_matrix
+from mmatch.ego.rigid import rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
 from mmatch.ego.track import TrackConfig, Tracker
@@ -254,10 +254,9 @@ class Fuser:
         if not hyps:
             return None
         x = np.array([h.x[:3] for h in hyps])
-        c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
-        R = np.stack([np.stack([c, -s], axis=1), np.stack([s, c], axis=1)], axis=1)
         cfg = self.config.confidence
-        expected, missed = shared_view(observe(own, cfg.observation), observe(other, cfg.observation), R, x[:, :2], cfg)
+        expected, missed = shared_view(observe(own, cfg.observation), observe(other, cfg.observation), rot2(x[:, 2]),
+                                       x[:, :2], cfg)
         return list(zip(expected.tolist(), missed.tolist()))
 
     def _arbitrate(self, own: SharedFrame, other: SharedFrame, match: MatchResult, aligned: AlignResult):

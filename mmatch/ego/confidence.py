@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 
 from mmatch.ego.base import Hypotheses, MatchResult, heading_yaws, point_counts, radial_ground_speeds
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
-from mmatch.ego.rigid import inv2
+from mmatch.ego.rigid import inv2, rot2
 from mmatch.errors import ConfigError
 from mmatch.shared import SharedFrame
 
@@ -188,11 +188,6 @@ def load_model(path: str | None = None) -> ProbabilityModel | None:
             raise ConfigError(f"confidence model {p} does not exist")
         return None
     return ProbabilityModel.from_json(p.read_text(encoding="utf-8"), str(p))
-
-
-def _rot(yaw: np.ndarray) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
 
 
 def _yaw(R: np.ndarray) -> np.ndarray:
@@ -399,7 +394,7 @@ def covariances(info: np.ndarray, chi2: np.ndarray, dof: np.ndarray, inflation: 
 def _variants(R: np.ndarray, t: np.ndarray, pivot: np.ndarray, axis: np.ndarray | None,
               cfg: ConfidenceConfig) -> tuple[np.ndarray, np.ndarray]:
     """For each hypothesis: its 180 deg flip about `pivot` (H, 2) and slides along `axis`."""
-    Rf = np.einsum("hab,bc->hac", R, _rot(np.array(np.pi)))
+    Rf = np.einsum("hab,bc->hac", R, rot2(np.array(np.pi)))
     tf = pivot - np.einsum("hab,hb->ha", Rf, np.einsum("hba,hb->ha", R, pivot - t))
     Rs, ts = [Rf], [tf]
     if axis is not None:
@@ -433,10 +428,12 @@ def _margins(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: list[np.ndar
     return margin, has.astype(float), amb
 
 
-def _in_view(p: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
+def _in_view(p: np.ndarray, cfg: ConfidenceConfig, margin_deg: float = 0.0, margin_m: float = 0.0) -> np.ndarray:
+    """Whether points p (..., 2) lie in the camera view of their radar's vehicle, at least
+    margin_deg inside its edge and margin_m short of its range."""
     r = np.linalg.norm(p, axis=-1)
     az = np.abs(np.arctan2(p[..., 0], p[..., 1]))
-    return (r > 4.0) & (r < cfg.camera_range_m) & (az < np.radians(cfg.camera_half_fov_deg))
+    return (r > 4.0) & (r < cfg.camera_range_m - margin_m) & (az < np.radians(cfg.camera_half_fov_deg - margin_deg))
 
 
 def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -488,21 +485,18 @@ def shared_view(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray,
         found_a, found_b = d.min(axis=2) < cfg.covisible_gate, d.min(axis=1) < cfg.covisible_gate
     else:
         found_a, found_b = np.zeros((H, len(a)), bool), np.zeros((H, len(b)), bool)
-    half = np.radians(cfg.camera_half_fov_deg - cfg.covisible_margin_deg)
     expected, missed = np.zeros(H), np.zeros(H)
     for pts, other, found in (((a[None] - t[:, None]) @ R, b, found_a),
                               (b[None] @ R.transpose(0, 2, 1) + t[:, None], a, found_b)):
         if not pts.shape[1]:
             continue
-        r = np.linalg.norm(pts, axis=2)                                             # (H, V)
-        inside = (r > 4.0) & (r < cfg.camera_range_m - cfg.covisible_margin_m) & \
-            (np.abs(np.arctan2(pts[..., 0], pts[..., 1])) < half)
+        inside = _in_view(pts, cfg, cfg.covisible_margin_deg, cfg.covisible_margin_m)   # (H, V)
         near = found
         if len(other):
             flat = pts.reshape(-1, 2)
             near = near | (np.linalg.norm(flat[:, None] - other[None], axis=2) < cfg.sighting_m).any(axis=1
-                                                                                                     ).reshape(r.shape)
-            inside &= near | ~_occluded(flat, other, cfg).reshape(r.shape)
+                                                                                                     ).reshape(inside.shape)
+            inside &= near | ~_occluded(flat, other, cfg).reshape(inside.shape)
         expected += inside.sum(axis=1)
         missed += (inside & ~near).sum(axis=1)
     return expected, missed

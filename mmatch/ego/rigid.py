@@ -93,6 +93,12 @@ def inv2(S: np.ndarray) -> np.ndarray:
     return out
 
 
+def rot2(yaw: np.ndarray) -> np.ndarray:
+    """(..., 2, 2) rotations by yaw (..., rad, counter-clockwise)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
 def yaw_of(T: np.ndarray) -> float:
     """Yaw (rad) of a 4x4 or 2x2 rotation."""
     return float(np.arctan2(T[1, 0], T[0, 0]))
