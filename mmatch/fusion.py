@@ -99,6 +99,7 @@ class Fuser:
         self.objects = ObjectTracker(config.objects) if self.tracker.enabled else None
         self.descriptor_scale = RunningDescriptorScale()
         self._scorer = get_matcher("consensus")
+        self._pairs_from_transform = bool(getattr(self.matcher, "pairs_from_transform", False))
         self._threshold = threshold(config.confidence)
         self._extra = config.extra_hypotheses if config.extra_hypotheses is not None else \
             (OWN_EXTRA_HYPOTHESES if config.aligner == DEFAULT_ALIGNER else 0)
@@ -264,7 +265,14 @@ class Fuser:
         the pairs it implies, rated by the confidence model; the most probable one wins.
 
         Returns T (4x4), its Assessment, every candidate as (T, Assessment) for evaluation, and
-        the winner's pairs.
+        the winner's pairs. With a matcher that says `pairs_from_transform` the winner's pairs
+        are the vehicles its transform lays onto each other (`pairs_under`: position, appearance
+        and detection score, no road-speed veto) rather than the pairs the matcher kept under
+        its own best hypothesis: the aligner's result moves from that hypothesis, and the veto,
+        which helps choose among hypotheses, dropped true pairs under a known transform (its
+        road-direction assumption fails at junctions and on noisy radial speeds). On 1000 wide
+        hard scenes (seeds 5-9): pair F1 0.809 -> 0.835 (recall 0.794 -> 0.848, precision 0.824
+        -> 0.823); the transforms are unchanged.
         """
         scale = match.descriptor_scale
         ctx = PairContext(own, other, self._scorer.scorer(own, other, scale), self.config.confidence)
@@ -284,7 +292,10 @@ class Fuser:
         Ts = [se2_to_matrix(R[h], t[h], dz) for h in range(len(R))]
         p = np.array([x.confidence for x in rated])
         k = int(np.nanargmax(p)) if np.isfinite(p).any() else 0
-        return Ts[k], rated[k], list(zip(Ts, rated)), pairs[k]
+        chosen = pairs[k]
+        if self._pairs_from_transform:
+            chosen = self._scorer.pairs_under(own, other, R[k], t[k], scale, (ctx.A, ctx.B))
+        return Ts[k], rated[k], list(zip(Ts, rated)), chosen
 
 
 def fuse(own: SharedFrame, other: SharedFrame | None, config: FusionConfig | None = None) -> FusionResult:

@@ -200,3 +200,32 @@ def test_a_peer_aligner_is_judged_on_its_own_results(hard_dir):
         assert len(res.candidates) <= 1, len(res.candidates)
         more += len(own_alig.fuse(own, other).candidates) > 1
     assert more >= 3                      # MMatch's path does weigh alternatives
+
+
+def test_fused_pairs_are_those_the_published_transform_implies(hard_dir):
+    """The pairs a fusion reports are the consensus rule's under the transform it publishes, not
+    the matcher's under its own best hypothesis (whose road-speed veto dropped true pairs): as
+    many true pairs or more on every scene, more on some, never an untrue pair more."""
+    from mmatch.fusion import FusionConfig, Fuser
+    fuser = Fuser(FusionConfig())
+    matcher, scorer = get_matcher("consensus"), get_matcher("consensus")
+    gained = 0
+    for f in sorted(hard_dir.glob("*.npz")):
+        s = load_scene(f)
+        own, other = shared_from_labels(s.ego, "ego"), shared_from_labels(s.cav, "cav")
+        res = fuser.fuse(own, other)
+        T = res.T_ego_cav if res.T_ego_cav is not None else res.refused_T
+        if T is None:
+            continue
+        np.testing.assert_array_equal(res.pairs, scorer.pairs_under(own, other, T[:2, :2], T[:2, 3]))
+        if rte_m(s.gt_T_ego_cav, T) > 2.0 or rre_deg(s.gt_T_ego_cav, T) > 5.0:
+            continue
+
+        def true_pairs(p: np.ndarray) -> int:
+            boxes = np.column_stack([own.vehicle_box_index[p[:, 0]], other.vehicle_box_index[p[:, 1]]])
+            return pair_counts(boxes.reshape(-1, 2), s.gt_pairs)[0]
+
+        before = matcher(own, other, MatchContext()).pairs
+        assert true_pairs(res.pairs) >= true_pairs(before), f.name
+        gained += true_pairs(res.pairs) > true_pairs(before)
+    assert gained >= 1

@@ -96,6 +96,7 @@ class ConsensusConfig:
 
 class ConsensusMatcher:
     name = "consensus"
+    pairs_from_transform = True     # the fused pairs are those the published transform implies (fusion.py)
 
     def __init__(self, config: ConsensusConfig = ConsensusConfig()) -> None:
         self.cfg = config

@@ -82,6 +82,7 @@ class RMNetConfig:
 
 class RMNetMatcher:
     name = "rmnet"
+    pairs_from_transform = True     # the fused pairs are those the published transform implies (fusion.py)
 
     def __init__(self, config: RMNetConfig = RMNetConfig(), session: RMNetSession | None = None) -> None:
         self.cfg = config
@@ -320,6 +321,7 @@ class RMNetOnlyMatcher(RMNetMatcher):
     """Ablation: the network's one-to-one pairs above 0.5, no geometric verification, no transform."""
 
     name = "rmnet-only"
+    pairs_from_transform = False    # the ablation judges the network's own pairs
 
     def __call__(self, own: SharedFrame, other: SharedFrame, ctx: MatchContext) -> MatchResult:
         if own.num_vehicles < 2 or other.num_vehicles < 2:
