@@ -266,8 +266,8 @@ class Fuser:
 
         Returns T (4x4), its Assessment, every candidate as (T, Assessment) for evaluation, and
         the winner's pairs. With a matcher that says `pairs_from_transform` the winner's pairs
-        are the vehicles its transform lays onto each other (`pairs_under`: position, appearance
-        and detection score, no road-speed veto) rather than the pairs the matcher kept under
+        are the vehicles its transform lays onto each other (the matcher's `pairs_under`: its own
+        final assignment without the road-speed veto) rather than the pairs the matcher kept under
         its own best hypothesis: the aligner's result moves from that hypothesis, and the veto,
         which helps choose among hypotheses, dropped true pairs under a known transform (its
         road-direction assumption fails at junctions and on noisy radial speeds). On 1000 wide
@@ -294,7 +294,7 @@ class Fuser:
         k = int(np.nanargmax(p)) if np.isfinite(p).any() else 0
         chosen = pairs[k]
         if self._pairs_from_transform:
-            chosen = self._scorer.pairs_under(own, other, R[k], t[k], scale, (ctx.A, ctx.B))
+            chosen = self.matcher.pairs_under(own, other, R[k], t[k], scale, (ctx.A, ctx.B))
         return Ts[k], rated[k], list(zip(Ts, rated)), chosen
 
 

@@ -43,6 +43,7 @@ from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.match import consensus as cs
 from mmatch.ego.match.graph import build_graph
 from mmatch.ego.match.rmnet_runtime import RMNetSession
+from mmatch.ego.memo import memo
 from mmatch.ego.observations import Observations, mahalanobis, observe
 from mmatch.ego.refine import refine_many
 from mmatch.ego.rigid import se2_to_matrix
@@ -89,11 +90,31 @@ class RMNetMatcher:
         self.session = session if session is not None else RMNetSession(config.model_path)
 
     def probabilities(self, own: SharedFrame, other: SharedFrame) -> tuple[np.ndarray, Observations, Observations]:
-        """(Va, Vb) network scores and both views' observations; zeros below two vehicles a view."""
+        """(Va, Vb) network scores and both views' observations; zeros below two vehicles a view.
+        Once per frame pair inside a fusion (ego/memo.py)."""
+        return memo("rmnet_probabilities", (own, other, self.session), lambda: self._probabilities(own, other))
+
+    def _probabilities(self, own: SharedFrame, other: SharedFrame) -> tuple[np.ndarray, Observations, Observations]:
         if own.num_vehicles < 2 or other.num_vehicles < 2:
             return np.zeros((own.num_vehicles, other.num_vehicles)), observe(own), observe(other)
         g = build_graph(own, other)
         return self.session.run_graph(g).astype(np.float64), g.obs_own, g.obs_other
+
+    def pairs_under(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
+                    descriptor_scale: float = 1.0, observed: tuple | None = None) -> np.ndarray:
+        """(P, 2) the one-to-one pairs this matcher assigns under one transform R (2, 2), t (2,):
+        its final assignment (distance, network score, detection score) without the road-speed veto.
+
+        observed: the two frames' Observations when already at hand."""
+        P, A, B = self.probabilities(own, other)
+        if observed is not None:
+            A, B = observed
+        if len(A.centres) == 0 or len(B.centres) == 0:
+            return np.zeros((0, 2), np.int32)
+        ccfg = self.cfg.consensus
+        D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
+        pairs, _ = assign(A, B, P, R, t, self.cfg, None, cs._scores(own, ccfg), cs._scores(other, ccfg), D)
+        return pairs
 
     def __call__(self, own: SharedFrame, other: SharedFrame, ctx: MatchContext) -> MatchResult:
         t0 = time.thread_time()
