@@ -184,12 +184,16 @@ class Fuser:
             return self._tracked(own, other, pred, cands, match, timings, predicted is None, a.reason, (T, a))
         sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
                     candidates=cands)
-        ambiguous = self._threshold > 0 and a.features.get("margin", 1.0) < self.config.confidence.min_margin
-        if a.confidence < self._threshold or ambiguous:
-            # not sure enough, or the matcher's own evidence prefers a distinct alternative (two
-            # judges disagree: ambiguous); the vehicles both probably see stay reported (with the estimate's confidence); the
-            # objects are not merged without a transform
-            reason = a.reason if a.confidence < self._threshold else "ambiguous"
+        ccfg = self.config.confidence
+        ambiguous = self._threshold > 0 and a.features.get("margin", 1.0) < ccfg.min_margin
+        lone = self._threshold > 0 and a.features.get("n_pairs", 2.0) <= 1 and a.features.get("sighting", 1.0) <= 0 \
+            and a.confidence < ccfg.single_pair_threshold
+        if a.confidence < self._threshold or ambiguous or lone:
+            # not sure enough, the matcher's own evidence prefers a distinct alternative (two
+            # judges disagree: ambiguous), or one unconfirmed pair carries it; the vehicles both
+            # probably see stay reported (with the estimate's confidence); the objects are not
+            # merged without a transform
+            reason = a.reason if a.confidence < self._threshold else "ambiguous" if ambiguous else "too few vehicles"
             return FusionResult("no-estimate", reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings, refused_T=T, **sure)
         return FusionResult("fused", "", T, match.pairs, merge_objects(own, other, T, match.pairs), timings, **sure)

@@ -181,3 +181,33 @@ def test_a_vehicle_the_other_should_see_and_does_not_is_counted(cav_y, cav_sees,
         SharedFrame("cav", 0, 0.0, 0.5, ego_velocity=v)
     X, _, _ = features(PairContext(own, other), np.eye(2)[None], np.array([[0.0, cav_y]]), np.zeros((0, 2), int))
     assert dict(zip(FEATURES, X[0]))["covisible_missed"] == missed
+
+
+@pytest.mark.parametrize("n_pairs, sighting, confidence, threshold, status", [
+    (1, 0, 0.65, None, "no-estimate"),     # one unconfirmed pair, sure by the model: not sure enough
+    (0, -1, 0.70, None, "no-estimate"),
+    (1, 1, 0.65, None, "fused"),           # the other vehicle seen where the estimate puts it
+    (2, 0, 0.65, None, "fused"),           # two pairs
+    (1, 0, 0.80, None, "fused"),           # above the single-pair threshold
+    (1, 0, 0.65, 0.0, "fused"),            # threshold 0 emits everything
+])
+def test_an_estimate_on_one_unconfirmed_pair_needs_the_single_pair_threshold(monkeypatch, n_pairs, sighting,
+                                                                             confidence, threshold, status):
+    from mmatch.ego.confidence import Assessment, ConfidenceConfig
+    from mmatch.fusion import FusionConfig, Fuser
+    from mmatch.label_frames import shared_from_labels
+    scene = scene_from_world(CASES["one co-visible vehicle"](), 0, "nominal", name="one")
+    fuser = Fuser(FusionConfig(confidence=ConfidenceConfig(threshold=threshold)))
+    assert fuser._threshold < 0.65 and ConfidenceConfig().single_pair_threshold == 0.75
+
+    def arbitrate(own, other, match, aligned):
+        a = Assessment(confidence, np.eye(3) * 0.01, 0.0, "poor fit",
+                       dict.fromkeys(FEATURES, 0.0) | {"n_pairs": float(n_pairs), "sighting": float(sighting),
+                                                       "margin": 1.0})
+        return aligned.T, a, [(aligned.T, a)], np.zeros((0, 2), np.int32)
+
+    monkeypatch.setattr(fuser, "_arbitrate", arbitrate)
+    res = fuser.fuse(shared_from_labels(scene.ego, "ego"), shared_from_labels(scene.cav, "cav"))
+    assert res.status == status, res.reason
+    if status == "no-estimate":
+        assert res.reason == "too few vehicles" and res.refused_T is not None
