@@ -1,7 +1,8 @@
 """The matcher ablation: several matchers, one run, the same scenes and the same aligner.
 
 `mmatch ablation DIR` evaluates every `*.npz` of DIR once per matcher (default: RM-net with
-geometric verification, RM-net alone, consensus, descriptor only, geometry only), with the
+geometric verification, RM-net alone, consensus with RM-net's pairs (the default),
+consensus, descriptor only, geometry only), with the
 descriptor scale measured once on the folder, and reports pair precision / recall / F1,
 RRE / RTE and latency side by side (a Markdown table for the README, and JSON).
 """
@@ -14,8 +15,9 @@ from pathlib import Path
 
 from mmatch.evaluate import EvalConfig, evaluate_dir, folder_descriptor_scale
 
-ABLATION = ("rmnet", "rmnet-only", "consensus", "descriptor", "geometry")
-LABELS = {"rmnet": "RM-net + verification", "rmnet-only": "RM-net alone", "consensus": "consensus (no learning)",
+ABLATION = ("rmnet", "rmnet-only", "consensus-rmnet", "consensus", "descriptor", "geometry")
+LABELS = {"rmnet": "RM-net + verification", "rmnet-only": "RM-net alone",
+          "consensus-rmnet": "consensus search, RM-net pairs (default)", "consensus": "consensus (no learning)",
           "descriptor": "descriptor only", "geometry": "geometry only"}
 
 

@@ -6,7 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
-HELP = "compare matchers (RM-net + verification, RM-net alone, consensus, descriptor, geometry) on one folder"
+HELP = ("compare matchers (RM-net + verification, RM-net alone, consensus with RM-net pairs, consensus, "
+        "descriptor, geometry) on one folder")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -9,6 +9,7 @@ from mmatch.errors import ConfigError
 MATCHERS: dict[str, str] = {
     "oracle": "mmatch.ego.match.oracle:OracleMatcher",
     "consensus": "mmatch.ego.match.consensus:ConsensusMatcher",
+    "consensus-rmnet": "mmatch.ego.match.consensus_rmnet:ConsensusRMNetMatcher",
     "none": "mmatch.ego.match.none:NoMatcher",
     "rmnet": "mmatch.ego.match.rmnet:RMNetMatcher",
     "rmnet-only": "mmatch.ego.match.rmnet:RMNetOnlyMatcher",
@@ -30,7 +31,7 @@ ALIGNERS: dict[str, str] = {
     "o3d-ransac": "mmatch.ego.align.baselines:O3DRansacAligner",
     "gicp": "mmatch.ego.align.baselines:GICPAligner",
 }
-DEFAULT_MATCHER = "consensus"
+DEFAULT_MATCHER = "consensus-rmnet"
 DEFAULT_ALIGNER = "constrained"
 
 

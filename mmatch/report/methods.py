@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mmatch.ego.registry import DEFAULT_MATCHER
 from mmatch.errors import ConfigError
 
 
@@ -31,15 +32,15 @@ class Method:
 
 
 METHODS: tuple[Method, ...] = (
-    Method("mmatch", "MMatch", "consensus", "constrained", "ours"),
+    Method("mmatch", "MMatch", DEFAULT_MATCHER, "constrained", "ours"),
     Method("rmnet", "MMatch, RM-net matcher", "rmnet", "constrained", "ours"),
     Method("true-pairs", "MMatch aligner, true pairs", "oracle", "constrained", "ours"),
     Method("yardstick", "true pairs + centroid ICP", "oracle", "centroid-icp", "yardstick"),
-    Method("paper", "paper's alignment as written", "consensus", "paper", "ablation"),
-    Method("icp-all", "ICP-All", "consensus", "icp-all", "ablation"),
-    Method("icp-bg", "ICP-BG", "consensus", "icp-bg", "ablation"),
-    Method("icp-veh", "ICP-Veh", "consensus", "icp-veh", "ablation"),
-    Method("icp-pair", "ICP-Pair", "consensus", "icp-pair", "ablation"),
+    Method("paper", "paper's alignment as written", DEFAULT_MATCHER, "paper", "ablation"),
+    Method("icp-all", "ICP-All", DEFAULT_MATCHER, "icp-all", "ablation"),
+    Method("icp-bg", "ICP-BG", DEFAULT_MATCHER, "icp-bg", "ablation"),
+    Method("icp-veh", "ICP-Veh", DEFAULT_MATCHER, "icp-veh", "ablation"),
+    Method("icp-pair", "ICP-Pair", DEFAULT_MATCHER, "icp-pair", "ablation"),
     Method("o3d-icp", "Open3D ICP (point-to-point)", "none", "o3d-icp", "peer"),
     Method("o3d-fgr", "Open3D FGR on FPFH", "none", "o3d-fgr", "peer"),
     Method("o3d-ransac", "Open3D RANSAC on FPFH", "none", "o3d-ransac", "peer"),

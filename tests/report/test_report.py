@@ -64,7 +64,7 @@ def test_every_number_equals_mmatch_eval(report_dir, small_hard, tmp_path):
         assert m["derived"]["pair_f1"] == f1(ev["pair_precision"], ev["pair_recall"])
     summary = (report_dir / "summary.md").read_text()
     mm = next(m for m in rep["methods"] if m["key"] == "mmatch")
-    assert f"| MMatch | consensus + constrained | {mm['derived']['success']['5deg_2m']:.3f} |" in summary
+    assert f"| MMatch | consensus-rmnet + constrained | {mm['derived']['success']['5deg_2m']:.3f} |" in summary
     cfg = json.loads((report_dir / "config.json").read_text())
     assert [c["key"] for c in cfg["methods"]] == keys
     assert cfg["methods"][0]["aligner_config"]["refine"]["iterations"] > 0

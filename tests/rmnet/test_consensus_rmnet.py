@@ -1,0 +1,60 @@
+"""The default matcher `consensus-rmnet`: consensus's transforms, RM-net's pairs under them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mmatch.ego.registry import DEFAULT_MATCHER, get_matcher
+from mmatch.errors import MMatchError
+from mmatch.evaluate import EvalConfig, evaluate_with, prepare_scene
+from mmatch.scene_io import load_scene
+from mmatch.sim.generate import generate
+
+
+@pytest.fixture(scope="module")
+def wide_hard(tmp_path_factory):
+    out = tmp_path_factory.mktemp("wide-hard")
+    generate(out, 40, seed=21, mode="hard", jobs=1, physics="wide")
+    return sorted(out.glob("*.npz"))
+
+
+def test_is_the_default_and_registered():
+    assert DEFAULT_MATCHER == "consensus-rmnet"
+    m = get_matcher("consensus-rmnet")
+    assert m.name == "consensus-rmnet" and m.pairs_from_transform
+
+
+def test_missing_model_fails_at_start_naming_the_file(tmp_path):
+    from mmatch.ego.match.consensus_rmnet import ConsensusRMNetMatcher
+    from mmatch.ego.match.rmnet import RMNetConfig
+    missing = tmp_path / "no-such.onnx"
+    with pytest.raises(MMatchError, match="no-such.onnx"):
+        ConsensusRMNetMatcher(rmnet=RMNetConfig(model_path=str(missing)))
+
+
+def test_same_transforms_as_consensus_with_more_precise_pairs(wide_hard):
+    """Through the CAV pipeline on wide physics: every scene's transform, status and confidence
+    are consensus's; the pairs under them are RM-net's, and more of them are right."""
+    counts = {"consensus": np.zeros(3), DEFAULT_MATCHER: np.zeros(3)}
+    for f in wide_hard:
+        scene = load_scene(f)
+        prepared = prepare_scene(scene)
+        res = {}
+        for name in counts:
+            r, fr = evaluate_with(scene, EvalConfig(matcher=name, confidence_threshold=0.0), prepared=prepared)
+            counts[name] += (r["tp"], r["predicted"], r["gt_pairs"])
+            res[name] = fr
+        a, b = res["consensus"], res[DEFAULT_MATCHER]
+        assert a.status == b.status and (a.confidence == b.confidence or np.isnan(a.confidence))
+        if a.T_ego_cav is not None:
+            np.testing.assert_allclose(a.T_ego_cav, b.T_ego_cav)
+
+    def prf(c):
+        p, r = c[0] / c[1], c[0] / c[2]
+        return p, r, 2 * p * r / (p + r)
+
+    p0, r0, f0 = prf(counts["consensus"])
+    p1, r1, f1 = prf(counts[DEFAULT_MATCHER])
+    assert p1 > p0 + 0.05, (p0, p1)
+    assert f1 > f0 + 0.03, (f0, f1)
