@@ -223,8 +223,10 @@ class Fuser:
                  timings: dict, full_search: bool, reason: str, chosen: tuple | None = None) -> FusionResult:
         """The pose filter's answer for this frame: every candidate the arbiter weighed is a
         measurement (ego/track/filter.py); the best hypothesis is published when its confidence
-        reaches the threshold. Pairs are the matcher's when its choice falls in that hypothesis,
-        else the vehicles the hypothesis lays on each other."""
+        reaches the threshold. Pairs: with a matcher that says `pairs_from_transform`, its
+        assignment under the published transform, as without tracking (30 drives of seed 500,
+        default matcher: tracked pair F1 0.840 -> 0.856); otherwise the matcher's when its choice
+        falls in that hypothesis, else the vehicles the hypothesis lays on each other."""
         t0 = time.perf_counter()
         candidates = [Candidate(pose_of(Tc), ac.covariance, float(np.nan_to_num(ac.confidence)))
                       for Tc, ac in cands]
@@ -240,7 +242,9 @@ class Fuser:
         # per-frame confidences); one carried by prediction alone loses what its spread lost
         confidence = float(hyp.belief * (1.0 if hit else within_success(cov)))
         pairs = np.asarray(match.pairs, np.int32).reshape(-1, 2)
-        if chosen is None or not self.tracker.agrees(hyp.T, chosen[0]):
+        if self._pairs_from_transform:
+            pairs = self.matcher.pairs_under(own, other, T[:2, :2], T[:2, 3], match.descriptor_scale)
+        elif chosen is None or not self.tracker.agrees(hyp.T, chosen[0]):
             pairs = pairs_under(own, other, T)
         a = chosen[1] if chosen is not None else None
         sure = dict(confidence=confidence, covariance=cov, ambiguity=a.ambiguity if a is not None else float("nan"),

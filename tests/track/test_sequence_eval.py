@@ -74,3 +74,28 @@ def test_figures_over_time():
     assert t["unrecovered"] == 1 and t["gross_runs"] == 2
     assert t["gross_frame_share"] == pytest.approx(3 / 8)
     assert np.isclose(t["frames"], 8)
+
+
+def test_tracked_pairs_are_those_the_published_transform_implies(short_sequences):
+    """With tracking too, a fused result's pairs are the matcher's assignment under the transform
+    it publishes (RM-net's for the default matcher), whether the frame was searched or tracked."""
+    from mmatch.ego.observations import observations_shared
+    from mmatch.evaluate import prepare_scene
+    from mmatch.scene_io import load_scene
+    from mmatch.sequence_eval import SequenceEvalConfig, group_sequences, tracking_fuser
+    folder, _ = short_sequences
+    groups, _ = group_sequences(sorted(str(p) for p in folder.glob("*.npz")))
+    checked = 0
+    for items in groups.values():
+        fuser = tracking_fuser(SequenceEvalConfig())          # one per drive, as `--sequences` runs it
+        for _, path in items:
+            own, other, _, _ = prepare_scene(load_scene(path))
+            res = fuser.fuse(own, other)
+            if res.status != "fused":
+                continue
+            T = res.T_ego_cav
+            with observations_shared():
+                expected = fuser.matcher.pairs_under(own, other, T[:2, :2], T[:2, 3])
+            np.testing.assert_array_equal(res.pairs, expected, err_msg=path)
+            checked += 1
+    assert checked >= 8
