@@ -58,3 +58,23 @@ def test_same_transforms_as_consensus_with_more_precise_pairs(wide_hard):
     p1, r1, f1 = prf(counts[DEFAULT_MATCHER])
     assert p1 > p0 + 0.05, (p0, p1)
     assert f1 > f0 + 0.03, (f0, f1)
+
+
+def test_dense_frames_take_rmnets_search():
+    """Above `dense_pairs` own x other vehicles the frame is RM-net's whole (its search grows with
+    the square of the vehicles, consensus's with the fourth power until its budget); below it the
+    consensus search runs."""
+    from mmatch.ego.base import MatchContext
+    from mmatch.ego.match.synthetic import dense_pair
+    m = get_matcher(DEFAULT_MATCHER)
+    consensus, rmnet = get_matcher("consensus"), get_matcher("rmnet")
+    own, other, _, _ = dense_pair(7, 20)
+    assert own.num_vehicles * other.num_vehicles > m.dense_pairs
+    ctx = MatchContext(descriptor_scale=1.0)
+    got, want = m(own, other, ctx), rmnet(own, other, ctx)
+    np.testing.assert_array_equal(got.pairs, want.pairs)
+    np.testing.assert_allclose(got.T_hint, want.T_hint)
+    m.dense_pairs = own.num_vehicles * other.num_vehicles
+    got, want = m(own, other, ctx), consensus(own, other, ctx)
+    np.testing.assert_array_equal(got.pairs, want.pairs)
+    np.testing.assert_allclose(got.T_hint, want.T_hint)

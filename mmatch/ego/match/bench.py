@@ -3,8 +3,8 @@
 - inference: ONNX Runtime time of the shipped model on graphs of 6, 20 and 40 vehicles a
   side (one thread), median of repeated calls;
 - dense traffic: synthetic frame pairs of about 40 vehicles a view (synthetic.py) through
-  the Ego path (codec, matching, alignment, confidence) with `rmnet`: latency median / p90,
-  success and pair F1.
+  the Ego path (codec, matching, alignment, confidence) with the default matcher (which hands
+  frames this dense to RM-net's search): latency median / p90, success and pair F1.
 """
 
 from __future__ import annotations
@@ -64,10 +64,11 @@ def dense(n: int, per_view: int = 40, seed: int = 41, matcher: str | None = None
     """Ego-path latency, success and pair F1 on n synthetic dense frame pairs (see the module docstring)."""
     from mmatch.codec import decode, encode
     from mmatch.ego.base import MatchContext
+    from mmatch.ego.registry import DEFAULT_MATCHER
     from mmatch.fusion import FusionConfig, Fuser
     from mmatch.metrics import is_success, pair_counts, rre_deg, rte_m
 
-    fuser = Fuser(FusionConfig(matcher=matcher or "rmnet"))
+    fuser = Fuser(FusionConfig(matcher=matcher or DEFAULT_MATCHER))
     pairs = [dense_pair(seed * 1000 + i, per_view) for i in range(n + 1)]
     totals, cpu, ok, per = [], [], [], []
     tp = pred = gt_n = 0
