@@ -100,6 +100,10 @@ class Fuser:
         self.descriptor_scale = RunningDescriptorScale()
         self._scorer = get_matcher("consensus")
         self._pairs_from_transform = bool(getattr(self.matcher, "pairs_from_transform", False))
+        # RM-net's pair scores are confidence evidence whatever the matcher: the matcher's own
+        # network when it has one (its scores are computed once per fusion), else the packaged one
+        self._pair_scorer = getattr(self.matcher, "rmnet", None) or \
+            (self.matcher if hasattr(self.matcher, "probabilities") else None)
         self._threshold = threshold(config.confidence)
         self._extra = config.extra_hypotheses if config.extra_hypotheses is not None else \
             (OWN_EXTRA_HYPOTHESES if config.aligner == DEFAULT_ALIGNER else 0)
@@ -283,7 +287,8 @@ class Fuser:
         -> 0.823); the transforms are unchanged.
         """
         scale = match.descriptor_scale
-        ctx = PairContext(own, other, self._scorer.scorer(own, other, scale), self.config.confidence)
+        ctx = PairContext(own, other, self._scorer.scorer(own, other, scale), self.config.confidence,
+                          self._pair_scorer, scale)
         if aligned.candidates is not None and len(aligned.candidates[0]):
             R, t = aligned.candidates
         else:

@@ -17,6 +17,11 @@ turns it into the probability that the estimate lies within 2 m / 5 deg of the t
 - Doppler: each matched vehicle's radial speeds in the two views are explained by one
   plausible ground velocity (two lines of sight fix it);
 - free space: the other radar's background must not lie where our radar sees through;
+- RM-net: the network scores every own x other vehicle pair from each view's own scene
+  (appearance, radar summaries, the vehicles' layout around it), knowing nothing of the
+  pose; a wrong pose lays vehicles on partners the network calls unlike. rmnet_support sums
+  the scores of the pairs RM-net's assignment makes under the hypothesis, rmnet_pair_score
+  averages the scores of the hypothesis' own matched pairs;
 - the fit itself: matched-pair Mahalanobis residuals, background overlap both ways, how
   well the background pins the pose (covariance, and whether it all lies on one line),
   distance of the yaw to the nearest heading the two radars' velocities allow.
@@ -55,7 +60,7 @@ FEATURES: tuple[str, ...] = (
     "n_pairs", "pair_chi2", "margin", "has_alternative", "sighting", "sighting_conflict",
     "doppler_plausible", "doppler_tested", "doppler_heading_deg", "free_space_violation", "bg_overlap",
     "bg_overlap_back", "log_pos_sigma", "log_yaw_sigma", "bg_linearity", "yaw_gap_deg", "n_background",
-    "covisible_missed",
+    "covisible_missed", "rmnet_support", "rmnet_pair_score",
 )
 # which evidence a refusal names when it weighs most against the estimate
 REASONS: dict[str, str] = {
@@ -66,6 +71,7 @@ REASONS: dict[str, str] = {
     "bg_overlap_back": "poor fit", "log_pos_sigma": "symmetric background",
     "log_yaw_sigma": "symmetric background", "bg_linearity": "symmetric background",
     "yaw_gap_deg": "poor fit", "n_background": "too few vehicles", "covisible_missed": "poor fit",
+    "rmnet_support": "poor fit", "rmnet_pair_score": "poor fit",
 }
 
 
@@ -244,13 +250,19 @@ class PairContext:
     """What the evidence of any hypothesis for one frame pair needs, computed once.
 
     own / other: the two shared frames; scorer: callable (R (H, 2, 2), t (H, 2)) -> (H,)
-    the matcher's evidence (None: no ambiguity figure).
+    the matcher's evidence (None: no ambiguity figure); pair_scorer: an `RMNetMatcher` (its
+    `probabilities` and `pairs_under_many`; None: one on the packaged model, loaded once);
+    descriptor_scale: the factor on descriptor distances the matcher used.
     """
 
     def __init__(self, own: SharedFrame, other: SharedFrame, scorer=None,
-                 cfg: ConfidenceConfig = ConfidenceConfig()) -> None:
+                 cfg: ConfidenceConfig = ConfidenceConfig(), pair_scorer=None,
+                 descriptor_scale: float = 1.0) -> None:
         self.own, self.other, self.scorer, self.cfg = own, other, scorer, cfg
         self.A, self.B = observe(own, cfg.observation), observe(other, cfg.observation)
+        self.pair_scorer = pair_scorer if pair_scorer is not None else default_pair_scorer()
+        self.descriptor_scale = descriptor_scale
+        self.P = self.pair_scorer.probabilities(own, other)[0]
         self.bg_own = own.background[:, :2].astype(float)
         self.bg_other = other.background[:, :2].astype(float)
         self.tree_own = cKDTree(self.bg_own) if len(self.bg_own) >= 3 else None
@@ -572,6 +584,30 @@ def _off_road_deg(ctx: PairContext, R: np.ndarray, v: np.ndarray, solved: np.nda
     return np.where(moving, np.nan_to_num(gap), 0.0).max(axis=1)
 
 
+@lru_cache(maxsize=1)
+def default_pair_scorer():
+    """An `RMNetMatcher` on the packaged model, built once (for contexts given none)."""
+    from mmatch.ego.match.rmnet import RMNetMatcher
+    return RMNetMatcher()
+
+
+def _rmnet_evidence(ctx: PairContext, R: np.ndarray, t: np.ndarray,
+                    pairs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(H,) summed RM-net score of the pairs RM-net assigns under each hypothesis, and (H,) the
+    mean score of each hypothesis' own pairs (0 without pairs; all 0 below two vehicles a view)."""
+    H = len(R)
+    support, own_score = np.zeros(H), np.zeros(H)
+    P = ctx.P
+    if P.size == 0 or not P.any():
+        return support, own_score
+    assigned = ctx.pair_scorer.pairs_under_many(ctx.own, ctx.other, R, t, ctx.descriptor_scale, (ctx.A, ctx.B))
+    for h, got in enumerate(assigned):
+        support[h] = P[got[:, 0], got[:, 1]].sum() if len(got) else 0.0
+        if len(pairs[h]):
+            own_score[h] = P[pairs[h][:, 0], pairs[h][:, 1]].mean()
+    return support, own_score
+
+
 def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
              match: MatchResult | None = None, inflation: float = 1.0
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -614,6 +650,7 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         lin = ev[:, 0] / np.maximum(ev[:, 1], 1e-9)
     sighting, conflict = _sighting(ctx, R, t)
     missed = shared_view(ctx.A, ctx.B, R, t, cfg)[1]
+    rm_support, rm_pair = _rmnet_evidence(ctx, R, t, pairs)
     gap = np.degrees(np.abs(_wrap(_yaw(R)[:, None] - ctx.yaws)).min(axis=1)) if ctx.yaws is not None \
         else np.full(H, 45.0)
     pos = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 1e-9) / max(inflation, 1e-9))
@@ -637,6 +674,8 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         "yaw_gap_deg": np.minimum(gap, 45.0),
         "n_background": np.full(H, float(np.log1p(min(len(ctx.bg_own), len(ctx.bg_other))))),
         "covisible_missed": np.minimum(missed, 6.0),
+        "rmnet_support": np.minimum(rm_support, 8.0),
+        "rmnet_pair_score": rm_pair,
     }
     return np.column_stack([cols[k] for k in FEATURES]), cov, amb
 

@@ -106,15 +106,23 @@ class RMNetMatcher:
         its final assignment (distance, network score, detection score) without the road-speed veto.
 
         observed: the two frames' Observations when already at hand."""
+        return self.pairs_under_many(own, other, np.asarray(R)[None], np.asarray(t)[None], descriptor_scale,
+                                     observed)[0]
+
+    def pairs_under_many(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
+                         descriptor_scale: float = 1.0, observed: tuple | None = None) -> list[np.ndarray]:
+        """`pairs_under` for H transforms R (H, 2, 2), t (H, 2) at once: H (P, 2) arrays (one
+        distance computation for all, one assignment each)."""
         P, A, B = self.probabilities(own, other)
         if observed is not None:
             A, B = observed
         if len(A.centres) == 0 or len(B.centres) == 0:
-            return np.zeros((0, 2), np.int32)
+            return [np.zeros((0, 2), np.int32) for _ in range(len(R))]
         ccfg = self.cfg.consensus
         D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
-        pairs, _ = assign(A, B, P, R, t, self.cfg, None, cs._scores(own, ccfg), cs._scores(other, ccfg), D)
-        return pairs
+        dist = mahalanobis(A, B, np.asarray(R, float), np.asarray(t, float))
+        sa, sb = cs._scores(own, ccfg), cs._scores(other, ccfg)
+        return [assign(A, B, P, R[h], t[h], self.cfg, None, sa, sb, D, dist[h])[0] for h in range(len(R))]
 
     def __call__(self, own: SharedFrame, other: SharedFrame, ctx: MatchContext) -> MatchResult:
         t0 = time.thread_time()
@@ -305,10 +313,12 @@ def _likeness(P: np.ndarray, D: np.ndarray, yaws, speed, cfg: RMNetConfig, use_a
 
 def assign(A: Observations, B: Observations, P: np.ndarray, R: np.ndarray, t: np.ndarray, cfg: RMNetConfig,
            veto: np.ndarray | None = None, score_a: np.ndarray | None = None,
-           score_b: np.ndarray | None = None, D: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+           score_b: np.ndarray | None = None, D: np.ndarray | None = None,
+           dist: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One-to-one pairs under a transform: Hungarian on Mahalanobis distance + (1 - network score)
-    (+ descriptor distance D), gated."""
-    dist = mahalanobis(A, B, R[None], t[None])[0]
+    (+ descriptor distance D), gated. dist: the (Va, Vb) distances under R, t when at hand."""
+    if dist is None:
+        dist = mahalanobis(A, B, R[None], t[None])[0]
     cost = dist / cfg.assign_gate_sigma + cfg.assign_prob_weight * (1 - P)
     if D is not None and cfg.assign_desc_weight > 0:
         cost = cost + cfg.assign_desc_weight * D
