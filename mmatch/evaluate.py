@@ -37,7 +37,8 @@ class EvalConfig:
     gained recall (30 nominal hard scenes, descriptors noisier by a log-normal factor:
     pair F1 0.683 with the measured scale 0.83, 0.745 without).
     confidence_threshold: estimates less sure than this are "no estimate" (None: the fitted
-    model's threshold; 0: every estimate is emitted).
+    model's threshold; 0: every estimate is emitted). confidence_model: the confidence model
+    file (None: the packaged one).
     """
 
     matcher: str = DEFAULT_MATCHER
@@ -45,6 +46,7 @@ class EvalConfig:
     cav: str = "pipeline"
     descriptor_scale: float | None = 1.0
     confidence_threshold: float | None = None
+    confidence_model: str | None = None
 
 
 _FUSERS: dict = {}
@@ -53,10 +55,11 @@ _FUSERS: dict = {}
 def _fuser(cfg: EvalConfig):
     from mmatch.ego.confidence import ConfidenceConfig
     from mmatch.fusion import FusionConfig, Fuser
-    key = (cfg.matcher, cfg.aligner, cfg.confidence_threshold)
+    key = (cfg.matcher, cfg.aligner, cfg.confidence_threshold, cfg.confidence_model)
     if key not in _FUSERS:
         _FUSERS[key] = Fuser(FusionConfig(matcher=cfg.matcher, aligner=cfg.aligner,
-                                          confidence=ConfidenceConfig(threshold=cfg.confidence_threshold)))
+                                          confidence=ConfidenceConfig(threshold=cfg.confidence_threshold,
+                                                                      model_path=cfg.confidence_model)))
     return _FUSERS[key]
 
 

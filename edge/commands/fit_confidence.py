@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import sys
+import tempfile
 from pathlib import Path
 
 from mmatch.edge.commands.args import positive_int
@@ -25,8 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
     from mmatch.ego.confidence import MODEL_PATH, load_model
-    from mmatch.ego.confidence_fit import fit_model
-    from mmatch.errors import ParseError
+    from mmatch.ego.confidence_fit import fit_model, neutral_model
+    from mmatch.errors import ConfigError, ParseError
     from mmatch.evaluate import EvalConfig, evaluate_dir
 
     from mmatch.ego.registry import MATCHERS
@@ -35,15 +37,26 @@ def run(args: argparse.Namespace) -> int:
     for m in matchers:
         if m not in MATCHERS:
             raise ParseError(f"--matchers: unknown matcher {m!r}; choose from {', '.join(sorted(MATCHERS))}")
-    current = load_model()                      # the model the evaluation runs under (its inflation)
-    results = []
     for folder in args.folders:
         if not Path(folder).is_dir() or not any(Path(folder).glob("*.npz")):
             raise ParseError(f"{folder}: not a folder of *.npz scene files")
-        for m in matchers:
-            _, res = evaluate_dir(folder, EvalConfig(matcher=m, confidence_threshold=0.0), args.jobs,
-                                  Progress(f"fit {m}"))
-            results.extend(res)
+    results = []
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            current = load_model()              # the model the evaluation runs under (its inflation)
+            model_path = None
+        except ConfigError as exc:
+            # a packaged model whose features are stale (evidence added or renamed): the candidates
+            # and their evidence do not depend on it, so evaluate under a neutral one
+            print(f"fit-confidence: {exc}; evaluating without it", file=sys.stderr)
+            current, model_path = None, str(Path(tmp) / "neutral.json")
+            Path(model_path).write_text(neutral_model().to_json())
+        for folder in args.folders:
+            for m in matchers:
+                _, res = evaluate_dir(folder, EvalConfig(matcher=m, confidence_threshold=0.0,
+                                                         confidence_model=model_path),
+                                      args.jobs, Progress(f"fit {m}"))
+                results.extend(res)
     try:
         model = fit_model(results, args.max_gross, args.min_coverage,
                           meta={"folders": args.folders, "matchers": matchers},

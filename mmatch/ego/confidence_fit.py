@@ -66,6 +66,13 @@ def choose_threshold(p: np.ndarray, gross: np.ndarray, n_scenes: int, max_gross:
     return float(p[order[k]] - 1e-9)
 
 
+def neutral_model() -> ProbabilityModel:
+    """A model of today's features that rates every candidate 0.5 with no inflation: what an
+    evaluation for fitting runs under when the packaged model's features are stale."""
+    n = len(FEATURES)
+    return ProbabilityModel(FEATURES, np.zeros(n), np.ones(n), np.zeros(n), 0.0, 1.0, 0.0)
+
+
 def fit_model(results: list[dict], max_gross: float = 0.015, min_coverage: float = 0.8,
               C: float = 1.0, meta: dict | None = None, inflation_used: float = 1.0) -> ProbabilityModel:
     """The probability model, inflation and threshold from evaluated scenes (see module doc).

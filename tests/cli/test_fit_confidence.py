@@ -1,0 +1,58 @@
+"""`mmatch fit-confidence`: a model of today's evidence from labelled folders, even when the
+packaged model is stale (its features from before an evidence change)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from mmatch.edge.cli import main
+from mmatch.ego import confidence
+from mmatch.ego.confidence import FEATURES, ProbabilityModel
+from mmatch.sim.generate import generate
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fit")
+    generate(out, 16, seed=31, mode="hard", jobs=1, physics="wide")
+    return out
+
+
+@pytest.fixture
+def stale_package(tmp_path, monkeypatch):
+    """The packaged model replaced by one whose features are one short of today's."""
+    good = json.loads(confidence.MODEL_PATH.read_text())
+    for k in ("features", "mean", "scale", "coef"):
+        good[k] = good[k][:-1]
+    stale = tmp_path / "stale.json"
+    stale.write_text(json.dumps(good))
+    confidence.load_model.cache_clear()
+    monkeypatch.setattr(confidence, "MODEL_PATH", stale)
+    yield stale
+    confidence.load_model.cache_clear()
+
+
+def _check(path) -> ProbabilityModel:
+    model = ProbabilityModel.from_json(path.read_text(), str(path))
+    assert model.features == FEATURES and 0.0 <= model.threshold <= 1.0 and model.inflation > 0
+    assert model.meta["scenes"] == 16 and model.meta["candidates"] > 16
+    return model
+
+
+def test_fits_a_model_of_todays_evidence(folder, tmp_path, capsys):
+    out = tmp_path / "model.json"
+    assert main(["fit-confidence", str(folder), "--matchers", "consensus", "--out", str(out)]) == 0
+    _check(out)
+    assert "threshold" in capsys.readouterr().out
+
+
+def test_a_stale_packaged_model_does_not_stop_the_fit(folder, tmp_path, stale_package, capsys):
+    out = tmp_path / "model.json"
+    assert main(["fit-confidence", str(folder), "--matchers", "consensus", "--out", str(out)]) == 0
+    assert "evaluating without it" in capsys.readouterr().err
+    model = _check(out)
+    assert np.any(model.coef != 0)
+    assert stale_package.read_text() != out.read_text()      # --out, not the package, was written
