@@ -216,7 +216,14 @@ def mahalanobis(A: Observations | PairedObservations, B: Observations | None, R:
     """
     P = A if isinstance(A, PairedObservations) else paired(A, B)
     Va, Vb = P.Va, P.Vb
-    q = _maha_sq(P.ca, P.Sa, P.cb, P.Sb, R, t) + P.pen
-    q = q.reshape(len(R), 2, Va, 2, Vb).transpose(0, 2, 4, 1, 3).reshape(len(R), Va, Vb, 4)
-    d = np.sqrt(np.maximum(q.min(axis=3), 0.0))
-    return (d, q.argmin(axis=3).astype(np.int8)) if with_modes else d   # mode: 2 * own mode + other mode
+    q = _maha_sq(P.ca, P.Sa, P.cb, P.Sb, R, t) + P.pen                    # (H, 2 Va, 2 Vb)
+    # the four combinations are the four blocks of q; the best of them block by block (a
+    # transposed copy of q and a reduction over its last axis cost twice as much)
+    best = q[:, :Va, :Vb]
+    mode = np.zeros(best.shape, np.int8) if with_modes else None
+    for k, block in ((1, q[:, :Va, Vb:]), (2, q[:, Va:, :Vb]), (3, q[:, Va:, Vb:])):
+        if with_modes:
+            mode[block < best] = k           # strictly better: ties keep the lower mode (argmin's)
+        best = np.minimum(best, block)
+    d = np.sqrt(np.maximum(best, 0.0))
+    return (d, mode) if with_modes else d   # mode: 2 * own mode + other mode

@@ -107,16 +107,32 @@ def yaw_of(T: np.ndarray) -> float:
 def distinct_best(R: np.ndarray, t: np.ndarray, order: np.ndarray, n: int, distinct_m: float,
                   distinct_deg: float) -> np.ndarray:
     """Indices of up to n planar transforms R (H, 2, 2), t (H, 2), taken in `order` (best first),
-    skipping any within distinct_m (m) and distinct_deg (deg) of one already taken."""
+    skipping any within distinct_m (m) and distinct_deg (deg) of one already taken.
+
+    Blocks of `order` at a time (16, 32, 64, ...): those near one already taken drop out at
+    once (in dense traffic hundreds of hypotheses agree on the best transform), and the rest
+    are taken greedily on their block's pairwise nearness."""
     yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    max_dy = np.radians(distinct_deg)
+    order = np.asarray(order, int)
+
+    def near(i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        dy = np.abs((yaw[i][:, None] - yaw[j][None] + np.pi) % (2 * np.pi) - np.pi)
+        return (np.linalg.norm(t[i][:, None] - t[j][None], axis=2) < distinct_m) & (dy < max_dy)
+
     chosen: list[int] = []
-    for h in order:
-        if len(chosen) >= n:
-            break
+    lo, block = 0, 16
+    while lo < len(order) and len(chosen) < n:
+        blk = order[lo:lo + block]
+        lo, block = lo + block, 2 * block
         if chosen:
-            c = np.asarray(chosen)
-            dy = np.abs((yaw[c] - yaw[h] + np.pi) % (2 * np.pi) - np.pi)
-            if np.any((np.linalg.norm(t[c] - t[h], axis=1) < distinct_m) & (dy < np.radians(distinct_deg))):
-                continue
-        chosen.append(int(h))
+            blk = blk[~near(blk, np.asarray(chosen)).any(axis=1)]
+        close = near(blk, blk).tolist()
+        local: list[int] = []
+        for k in range(len(blk)):
+            if len(chosen) >= n:
+                break
+            if not any(close[k][m] for m in local):
+                local.append(k)
+                chosen.append(int(blk[k]))
     return np.asarray(chosen, int)

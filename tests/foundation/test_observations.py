@@ -174,3 +174,30 @@ def test_one_fusion_observes_each_frame_once_and_the_shared_arrays_cannot_be_cha
         with pytest.raises(ValueError):
             a.centres[0, 0] = 1.0
     assert observe(f) is not a
+
+
+def _random_observations(rng: np.random.Generator, V: int):
+    from mmatch.ego.observations import Observations
+    c = rng.uniform(-40, 40, (V, 2))
+    S = np.eye(2)[None] * rng.uniform(0.3, 3.0, (V, 1, 1))
+    return Observations(c, S, c + rng.normal(0, 1.0, (V, 2)), 2 * S, np.where(rng.random(V) < 0.5, 2.0, 0.0))
+
+
+@pytest.mark.parametrize("V", [1, 3, 12])
+def test_mahalanobis_takes_the_best_of_the_four_estimate_combinations(V):
+    rng = np.random.default_rng(V)
+    A, B = _random_observations(rng, V), _random_observations(rng, V + 2)
+    R, t = np.stack([_rot(d) for d in rng.uniform(-180, 180, 6)]), rng.uniform(-20, 20, (6, 2))
+    d, mode = mahalanobis(A, B, R, t, with_modes=True)
+    ref = np.full(d.shape + (4,), np.inf)
+    for ma, (ca, Sa, pa) in enumerate(A.modes()):
+        for mb, (cb, Sb, pb) in enumerate(B.modes()):
+            for h in range(len(R)):
+                for i in range(len(ca)):
+                    for j in range(len(cb)):
+                        S = Sa[i] + R[h] @ Sb[j] @ R[h].T
+                        r = ca[i] - (R[h] @ cb[j] + t[h])
+                        ref[h, i, j, 2 * ma + mb] = r @ np.linalg.solve(S, r) + pa[i] + pb[j]
+    np.testing.assert_allclose(d, np.sqrt(ref.min(axis=3)), rtol=1e-4, atol=1e-4)
+    best = np.take_along_axis(ref, mode[..., None].astype(int), axis=3)[..., 0]
+    np.testing.assert_allclose(best, ref.min(axis=3), rtol=1e-4, atol=1e-3)   # the mode is a best one
