@@ -8,6 +8,7 @@ a frame pair without an estimate counts as a failure.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from collections.abc import Callable
@@ -38,7 +39,9 @@ class EvalConfig:
     pair F1 0.683 with the measured scale 0.83, 0.745 without).
     confidence_threshold: estimates less sure than this are "no estimate" (None: the fitted
     model's threshold; 0: every estimate is emitted). confidence_model: the confidence model
-    file (None: the packaged one).
+    file (None: the packaged one). heading_prior: False runs the Ego side as if neither
+    radar's velocity gave the road direction (a vehicle standing still or turning: ego/base.py
+    `without_heading_prior`), on scenes that all have one.
     """
 
     matcher: str = DEFAULT_MATCHER
@@ -47,6 +50,7 @@ class EvalConfig:
     descriptor_scale: float | None = 1.0
     confidence_threshold: float | None = None
     confidence_model: str | None = None
+    heading_prior: bool = True
 
 
 _FUSERS: dict = {}
@@ -102,10 +106,13 @@ def evaluate_with(scene: Scene, cfg: EvalConfig, fuser=None, prepared: tuple | N
     caller has it already, `prepare_scene`'s output; returns (per-scene result, FusionResult)."""
     from mmatch.ego.base import MatchContext
 
+    from mmatch.ego.base import without_heading_prior
+
     own, received, payload, stages = prepared if prepared is not None else prepare_scene(scene, cfg)
     scale = 1.0 if cfg.descriptor_scale is None else cfg.descriptor_scale
-    result = (fuser or _fuser(cfg)).fuse(own, received,
-                                         MatchContext(gt_box_pairs=scene.gt_pairs, descriptor_scale=scale))
+    with contextlib.nullcontext() if cfg.heading_prior else without_heading_prior():
+        result = (fuser or _fuser(cfg)).fuse(own, received,
+                                             MatchContext(gt_box_pairs=scene.gt_pairs, descriptor_scale=scale))
     stages = dict(stages, **result.timings)
     box_pairs = np.column_stack([own.vehicle_box_index[result.pairs[:, 0]],
                                  received.vehicle_box_index[result.pairs[:, 1]]]) if len(result.pairs) \

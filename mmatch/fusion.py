@@ -9,7 +9,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mmatch.ego.base import AlignResult, MatchContext, MatchResult, far_side_centres, without_heading_prior
+from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres, heading_yaws,
+                             without_heading_prior)
 from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, shared_view, threshold
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import rot2, se2_to_matrix
@@ -105,6 +106,7 @@ class Fuser:
         self._pair_scorer = getattr(self.matcher, "rmnet", None) or \
             (self.matcher if hasattr(self.matcher, "probabilities") else None)
         self._threshold = threshold(config.confidence)
+        self._threshold_no_heading = threshold(config.confidence, heading=False)
         self._extra = config.extra_hypotheses if config.extra_hypotheses is not None else \
             (OWN_EXTRA_HYPOTHESES if config.aligner == DEFAULT_ALIGNER else 0)
         self._deferred: list[tuple[SharedFrame, SharedFrame, MatchContext | None, Prediction]] = []
@@ -189,15 +191,16 @@ class Fuser:
         sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
                     candidates=cands)
         ccfg = self.config.confidence
-        ambiguous = self._threshold > 0 and a.features.get("margin", 1.0) < ccfg.min_margin
-        lone = self._threshold > 0 and a.features.get("n_pairs", 2.0) <= 1 and a.features.get("sighting", 1.0) <= 0 \
+        thr = self._threshold if heading_yaws(own, other) is not None else self._threshold_no_heading
+        ambiguous = thr > 0 and a.features.get("margin", 1.0) < ccfg.min_margin
+        lone = thr > 0 and a.features.get("n_pairs", 2.0) <= 1 and a.features.get("sighting", 1.0) <= 0 \
             and a.confidence < ccfg.single_pair_threshold
-        if a.confidence < self._threshold or ambiguous or lone:
+        if a.confidence < thr or ambiguous or lone:
             # not sure enough, the matcher's own evidence prefers a distinct alternative (two
             # judges disagree: ambiguous), or one unconfirmed pair carries it; the vehicles both
             # probably see stay reported (with the estimate's confidence); the objects are not
             # merged without a transform
-            reason = a.reason if a.confidence < self._threshold else "ambiguous" if ambiguous else "too few vehicles"
+            reason = a.reason if a.confidence < thr else "ambiguous" if ambiguous else "too few vehicles"
             return FusionResult("no-estimate", reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings, refused_T=T, **sure)
         return FusionResult("fused", "", T, match.pairs, merge_objects(own, other, T, match.pairs), timings, **sure)

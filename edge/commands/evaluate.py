@@ -33,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_scene_options(p: argparse.ArgumentParser) -> None:
     """The options of how scene files are run that `mmatch eval` and `mmatch report` share:
-    --cav, --descriptor-scale, --confidence-threshold."""
+    --cav, --descriptor-scale, --confidence-threshold, --no-heading-prior."""
     p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
                    help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
     p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
@@ -42,6 +42,9 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--confidence-threshold", type=_probability, default=None, metavar="P",
                    help="estimates less sure than P (0-1) are 'no estimate'; default: the fitted model's "
                         "threshold; 0 emits every estimate")
+    p.add_argument("--no-heading-prior", dest="heading_prior", action="store_false",
+                   help="run the Ego side as if neither radar's velocity gave the road direction "
+                        "(a vehicle standing still or turning)")
 
 
 def _probability(text: str) -> float:
@@ -90,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
     if why:
         raise ConfigError(why)
     cfg = EvalConfig(matcher=args.matcher, aligner=args.aligner, cav=args.cav,
-                     descriptor_scale=args.descriptor_scale, confidence_threshold=args.confidence_threshold)
+                     descriptor_scale=args.descriptor_scale, confidence_threshold=args.confidence_threshold,
+                     heading_prior=args.heading_prior)
     if args.sequences:
         return _run_sequences(args, cfg)
     rep, results = evaluate_dir(args.folder, cfg, args.jobs, Progress("eval"))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 from mmatch.edge.commands.args import positive_int
@@ -22,6 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--matchers", default="consensus,rmnet",
                    help="comma-separated matchers whose candidates the model learns from (one model serves all)")
     p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
+    p.add_argument("--no-without-heading", dest="without_heading", action="store_false",
+                   help="skip the second model, for frame pairs without a heading prior (a radar standing "
+                        "still or turning), fit on the same folders run without it")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,7 +44,6 @@ def run(args: argparse.Namespace) -> int:
     for folder in args.folders:
         if not Path(folder).is_dir() or not any(Path(folder).glob("*.npz")):
             raise ParseError(f"{folder}: not a folder of *.npz scene files")
-    results = []
     with tempfile.TemporaryDirectory() as tmp:
         try:
             current = load_model()              # the model the evaluation runs under (its inflation)
@@ -51,25 +54,37 @@ def run(args: argparse.Namespace) -> int:
             print(f"fit-confidence: {exc}; evaluating without it", file=sys.stderr)
             current, model_path = None, str(Path(tmp) / "neutral.json")
             Path(model_path).write_text(neutral_model().to_json())
-        for folder in args.folders:
-            for m in matchers:
-                _, res = evaluate_dir(folder, EvalConfig(matcher=m, confidence_threshold=0.0,
-                                                         confidence_model=model_path),
-                                      args.jobs, Progress(f"fit {m}"))
-                results.extend(res)
+        priors = [True, False] if args.without_heading else [True]
+        results: dict[bool, list[dict]] = {h: [] for h in priors}
+        for heading in priors:
+            for folder in args.folders:
+                for m in matchers:
+                    cfg = EvalConfig(matcher=m, confidence_threshold=0.0, confidence_model=model_path,
+                                     heading_prior=heading)
+                    _, res = evaluate_dir(folder, cfg, args.jobs,
+                                          Progress(f"fit {m}" + ("" if heading else " without heading")))
+                    results[heading].extend(res)
+    meta = {"folders": args.folders, "matchers": matchers}
     try:
-        model = fit_model(results, args.max_gross, args.min_coverage,
-                          meta={"folders": args.folders, "matchers": matchers},
+        model = fit_model(results[True], args.max_gross, args.min_coverage, meta=meta,
                           inflation_used=current.inflation if current is not None else 1.0)
+        if args.without_heading:
+            used = current.for_heading(False).inflation if current is not None else 1.0
+            sub = fit_model(results[False], args.max_gross, args.min_coverage, meta=dict(meta, heading_prior=False),
+                            inflation_used=used)
+            model = replace(model, without_heading=sub)
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
     out = Path(args.out) if args.out else MODEL_PATH
     out.write_text(model.to_json() + "\n")
-    m = model.meta
-    print(f"fit on {m['candidates']} candidate transforms of {m['scenes']} scenes (success {m['candidate_success']:.3f}); "
-          f"chosen per scene: success {m['chosen_success']:.3f}, gross {m['chosen_gross']:.3f}; "
-          f"threshold {model.threshold:.3f}, covariance inflation {model.inflation:.2f}")
-    for name, c in sorted(zip(model.features, model.coef), key=lambda x: -abs(x[1])):
-        print(f"  {name:<22} {c:+.3f}")
+    for what, mdl in (("", model), (" without a heading prior", model.without_heading)):
+        if mdl is None:
+            continue
+        m = mdl.meta
+        print(f"fit{what} on {m['candidates']} candidate transforms of {m['scenes']} scenes "
+              f"(success {m['candidate_success']:.3f}); chosen per scene: success {m['chosen_success']:.3f}, "
+              f"gross {m['chosen_gross']:.3f}; threshold {mdl.threshold:.3f}, covariance inflation {mdl.inflation:.2f}")
+        for name, c in sorted(zip(mdl.features, mdl.coef), key=lambda x: -abs(x[1])):
+            print(f"  {name:<22} {c:+.3f}")
     print(f"wrote {out}")
     return 0

@@ -160,6 +160,14 @@ class ProbabilityModel:
     inflation: float = 1.0
     threshold: float = 0.5
     meta: dict = field(default_factory=dict)
+    without_heading: "ProbabilityModel | None" = None   # for frame pairs without a heading prior
+
+    def for_heading(self, known: bool) -> "ProbabilityModel":
+        """The model for a frame pair with (known) or without a road-direction heading prior
+        (a radar standing still or turning, ego/base.py `heading_yaws`): the evidence weighs
+        otherwise there (no yaw gap, no single-pair hypotheses), and a model fit only where the
+        prior is known refuses every such frame."""
+        return self if known or self.without_heading is None else self.without_heading
 
     def logit_terms(self, x: np.ndarray) -> np.ndarray:
         return self.coef * (x - self.mean) / self.scale
@@ -170,21 +178,35 @@ class ProbabilityModel:
         s = ((z - self.mean) / self.scale) @ self.coef + self.intercept
         return 1.0 / (1.0 + np.exp(-np.clip(s, -40, 40)))
 
+    def to_dict(self) -> dict:
+        d = {"features": list(self.features), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
+             "coef": self.coef.tolist(), "intercept": float(self.intercept), "inflation": float(self.inflation),
+             "threshold": float(self.threshold), "meta": self.meta}
+        if self.without_heading is not None:
+            d["without_heading"] = self.without_heading.to_dict()
+        return d
+
     def to_json(self) -> str:
-        return json.dumps({"features": list(self.features), "mean": self.mean.tolist(),
-                           "scale": self.scale.tolist(), "coef": self.coef.tolist(),
-                           "intercept": float(self.intercept), "inflation": float(self.inflation),
-                           "threshold": float(self.threshold), "meta": self.meta}, indent=1)
+        return json.dumps(self.to_dict(), indent=1)
 
     @classmethod
     def from_json(cls, text: str, where: str = "<model>") -> "ProbabilityModel":
         try:
             d = json.loads(text)
+        except ValueError as exc:
+            raise ConfigError(f"{where}: not a confidence model ({exc})") from exc
+        return cls.from_dict(d, where)
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "<model>") -> "ProbabilityModel":
+        try:
+            sub = d.get("without_heading")
+            sub = cls.from_dict(sub, f"{where}: without_heading") if sub is not None else None
             feats = tuple(d["features"])
             arrays = [np.asarray(d[k], float) for k in ("mean", "scale", "coef")]
             model = cls(feats, *arrays, float(d["intercept"]), float(d.get("inflation", 1.0)),
-                        float(d.get("threshold", 0.5)), dict(d.get("meta", {})))
-        except (ValueError, KeyError, TypeError) as exc:
+                        float(d.get("threshold", 0.5)), dict(d.get("meta", {})), sub)
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise ConfigError(f"{where}: not a confidence model ({exc})") from exc
         if feats != FEATURES or any(a.shape != (len(FEATURES),) for a in arrays) \
                 or not all(np.all(np.isfinite(a)) for a in arrays) or np.any(model.scale <= 0):
@@ -693,12 +715,13 @@ def evidence(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndar
     return dict(zip(FEATURES, map(float, X[0]))), cov[0], float(amb[0])
 
 
-def threshold(cfg: ConfidenceConfig = ConfidenceConfig()) -> float:
-    """The probability below which an estimate is refused (0 without a model)."""
+def threshold(cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True) -> float:
+    """The probability below which an estimate is refused (0 without a model): the configured
+    one, else the fitted model's for frame pairs with (heading) or without a heading prior."""
     if cfg.threshold is not None:
         return float(cfg.threshold)
     model = load_model(cfg.model_path)
-    return model.threshold if model is not None else 0.0
+    return model.for_heading(heading).threshold if model is not None else 0.0
 
 
 def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
@@ -709,6 +732,8 @@ def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarra
     """
     cfg = ctx.cfg
     model = load_model(cfg.model_path)
+    if model is not None:
+        model = model.for_heading(ctx.yaws is not None)
     inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
     X, cov, amb = features(ctx, R, t, pairs, match, inflation)
     out = []

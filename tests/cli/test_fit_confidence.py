@@ -11,6 +11,7 @@ import pytest
 from mmatch.edge.cli import main
 from mmatch.ego import confidence
 from mmatch.ego.confidence import FEATURES, ProbabilityModel
+from mmatch.errors import ConfigError
 from mmatch.sim.generate import generate
 
 
@@ -45,8 +46,31 @@ def _check(path) -> ProbabilityModel:
 def test_fits_a_model_of_todays_evidence(folder, tmp_path, capsys):
     out = tmp_path / "model.json"
     assert main(["fit-confidence", str(folder), "--matchers", "consensus", "--out", str(out)]) == 0
-    _check(out)
+    model = _check(out)
     assert "threshold" in capsys.readouterr().out
+    sub = model.without_heading                 # the second model, for frames without a heading prior
+    assert sub is not None and sub.meta["heading_prior"] is False and sub.meta["scenes"] == 16
+    assert sub.coef[FEATURES.index("yaw_gap_deg")] == 0.0      # no prior, no yaw gap to weigh
+    assert model.for_heading(False) is sub and model.for_heading(True) is model
+    again = ProbabilityModel.from_json(model.to_json())
+    assert again.without_heading is not None and np.allclose(again.without_heading.coef, sub.coef)
+
+
+def test_the_second_model_can_be_left_out(folder, tmp_path):
+    out = tmp_path / "model.json"
+    assert main(["fit-confidence", str(folder), "--matchers", "consensus", "--no-without-heading",
+                 "--out", str(out)]) == 0
+    model = _check(out)
+    assert model.without_heading is None and model.for_heading(False) is model
+
+
+def test_a_broken_second_model_is_refused_naming_the_file(tmp_path):
+    d = json.loads(confidence.MODEL_PATH.read_text())
+    d["without_heading"] = dict(d["without_heading"], coef=d["without_heading"]["coef"][:-1])
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(d))
+    with pytest.raises(ConfigError, match=f"{bad}: without_heading"):
+        confidence.load_model(str(bad))
 
 
 def test_a_stale_packaged_model_does_not_stop_the_fit(folder, tmp_path, stale_package, capsys):

@@ -15,10 +15,11 @@ from mmatch.sim.world import LANE_W, Vehicles, World, _Builder
 SEEDS = range(4)
 
 
-def _world(cars: list[tuple[float, float]], one_side: bool = False, colour: int = 0, poles: bool = True) -> World:
+def _world(cars: list[tuple[float, float]], one_side: bool = False, colour: int = 0, poles: bool = True,
+           ego_speed: float = 14.0, colours: list[int] | None = None) -> World:
     """A straight 3-lane road along +y: guardrails (one side only if asked) and poles every 25 m,
-    nothing else; Ego at (0, 0) and CAV at (0, 30) driving +y at 14 m/s, `cars` (x, y) at the same
-    speed, all alike (one colour, one size)."""
+    nothing else; Ego at (0, 0) driving +y at ego_speed and CAV at (0, 30) at 14 m/s, `cars`
+    (x, y) at the same speed, all alike (one size; one colour unless `colours` gives each its own)."""
     b = _Builder(np.random.default_rng(0))
     half = 1.5 * LANE_W
     for side in ((1,) if one_side else (-1, 1)):
@@ -28,8 +29,11 @@ def _world(cars: list[tuple[float, float]], one_side: bool = False, colour: int 
     pts, kind, wa, wb, occ = b.result()
     pos = np.array([[0.0, 0.0], [0.0, 30.0]] + [list(c) for c in cars])
     n = len(pos)
-    veh = Vehicles(pos0=pos, yaw=np.full(n, np.pi / 2), speed=np.full(n, 14.0),
-                   size=np.tile([4.5, 1.85, 1.5], (n, 1)), colour=np.full(n, colour), parked=np.zeros(n, bool))
+    speed = np.full(n, 14.0)
+    speed[0] = ego_speed
+    colour_of = np.array([colour, colour] + list(colours)) if colours is not None else np.full(n, colour)
+    veh = Vehicles(pos0=pos, yaw=np.full(n, np.pi / 2), speed=speed,
+                   size=np.tile([4.5, 1.85, 1.5], (n, 1)), colour=colour_of, parked=np.zeros(n, bool))
     return World(road="straight", lanes=3, static_pts=pts, static_kind=kind, walls_a=wa, walls_b=wb,
                  wall_occludes=occ, vehicles=veh, ego=0, cav=1, relation="same",
                  meta={"mode": "test", "road": "straight", "relation": "same"})
@@ -56,6 +60,19 @@ def test_hard_situations_give_no_estimate_or_a_right_one(case):
         safe += (not fused) or res["success"]
     print(f"\n{case}: {outcomes}")
     assert safe >= 3, outcomes
+
+
+def test_an_ego_standing_still_still_gets_estimates_and_no_wrong_one():
+    """A radar standing still gives no road direction (no heading prior): the confidence model
+    fit without one decides; the model fit with one refused every such frame."""
+    world = lambda: _world([(LANE_W, 45.0), (-LANE_W, 58.0), (0.0, 72.0)], ego_speed=0.0, colours=[1, 3, 5])
+    fused_right = 0
+    for seed in SEEDS:
+        scene = scene_from_world(world(), seed, "nominal", name="ego stopped")
+        res = evaluate_scene(scene, EvalConfig())
+        assert not (res["status"] == "fused" and not res["success"]), (seed, res["rte_m"], res["rre_deg"])
+        fused_right += res["status"] == "fused"
+    assert fused_right >= 2
 
 
 def _line_frame(sender: str, y0: float) -> SharedFrame:
