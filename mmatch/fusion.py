@@ -9,8 +9,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres, heading_yaws,
-                             without_heading_prior)
+from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres,
+                             velocity_heading_yaws, without_heading_prior)
 from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, shared_view, threshold
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import rot2, se2_to_matrix
@@ -191,7 +191,7 @@ class Fuser:
         sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
                     candidates=cands)
         ccfg = self.config.confidence
-        thr = self._threshold if heading_yaws(own, other) is not None else self._threshold_no_heading
+        thr = self._threshold if velocity_heading_yaws(own, other) is not None else self._threshold_no_heading
         ambiguous = thr > 0 and a.features.get("margin", 1.0) < ccfg.min_margin
         lone = thr > 0 and a.features.get("n_pairs", 2.0) <= 1 and a.features.get("sighting", 1.0) <= 0 \
             and a.confidence < ccfg.single_pair_threshold

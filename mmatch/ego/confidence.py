@@ -47,7 +47,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import Hypotheses, MatchResult, heading_yaws, point_counts, radial_ground_speeds
+from mmatch.ego.base import (Hypotheses, MatchResult, heading_yaws, point_counts, radial_ground_speeds,
+                             velocity_heading_yaws)
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.rigid import inv2, rot2
 from mmatch.errors import ConfigError
@@ -163,10 +164,11 @@ class ProbabilityModel:
     without_heading: "ProbabilityModel | None" = None   # for frame pairs without a heading prior
 
     def for_heading(self, known: bool) -> "ProbabilityModel":
-        """The model for a frame pair with (known) or without a road-direction heading prior
-        (a radar standing still or turning, ego/base.py `heading_yaws`): the evidence weighs
-        otherwise there (no yaw gap, no single-pair hypotheses), and a model fit only where the
-        prior is known refuses every such frame."""
+        """The model for a frame pair with (known) or without the velocities' heading prior
+        (a radar standing still or turning, ego/base.py `velocity_heading_yaws`): the evidence
+        weighs otherwise there (the road axes of the backgrounds, a looser prior, or none; no
+        road-speed consistency), and a model fit only where the prior is known refused every
+        such frame."""
         return self if known or self.without_heading is None else self.without_heading
 
     def logit_terms(self, x: np.ndarray) -> np.ndarray:
@@ -292,6 +294,7 @@ class PairContext:
         if self.tree_own is not None:
             self.normal, self.linear = _normals(self.bg_own, self.tree_own)
         self.yaws = heading_yaws(own, other)
+        self.velocity_prior = velocity_heading_yaws(own, other) is not None
         self.ge, self.ue = radial_ground_speeds(own)
         self.gc, self.uc = radial_ground_speeds(other)
         self.ne, self.nc = point_counts(own), point_counts(other)
@@ -733,7 +736,7 @@ def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarra
     cfg = ctx.cfg
     model = load_model(cfg.model_path)
     if model is not None:
-        model = model.for_heading(ctx.yaws is not None)
+        model = model.for_heading(ctx.velocity_prior)
     inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
     X, cov, amb = features(ctx, R, t, pairs, match, inflation)
     out = []

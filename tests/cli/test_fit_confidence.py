@@ -50,7 +50,6 @@ def test_fits_a_model_of_todays_evidence(folder, tmp_path, capsys):
     assert "threshold" in capsys.readouterr().out
     sub = model.without_heading                 # the second model, for frames without a heading prior
     assert sub is not None and sub.meta["heading_prior"] is False and sub.meta["scenes"] == 16
-    assert sub.coef[FEATURES.index("yaw_gap_deg")] == 0.0      # no prior, no yaw gap to weigh
     assert model.for_heading(False) is sub and model.for_heading(True) is model
     again = ProbabilityModel.from_json(model.to_json())
     assert again.without_heading is not None and np.allclose(again.without_heading.coef, sub.coef)

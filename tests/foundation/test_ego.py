@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmatch.ego.base import MatchContext, descriptor_distance, heading_yaws
+from mmatch.ego.base import (ROAD_AXIS_MIN_STRENGTH, MatchContext, descriptor_distance, heading_yaws, road_axis,
+                             velocity_heading_yaws)
 from mmatch.ego.registry import get_aligner, get_matcher
 from mmatch.ego.rigid import icp2d, kabsch2d, se2_to_matrix
 from mmatch.errors import ConfigError
@@ -68,6 +69,41 @@ def test_heading_yaws_need_moving_radars():
     assert np.degrees(yaws[0]) == pytest.approx(90)
     other.ego_velocity = np.array([0.5, 0.5])
     assert heading_yaws(own, other) is None
+
+
+def _street(yaw_deg: float, seed: int, cross: bool = False) -> np.ndarray:
+    """(N, 3) background of a street along +y turned by yaw_deg: two guardrails 8 m either side
+    (every 1.5 m, 0.3 m noise), poles, and a cross street at y = 40 when asked."""
+    rng = np.random.default_rng(seed)
+    y = np.arange(5.0, 90.0, 1.5)
+    pts = [np.column_stack([np.full(len(y), side * 8.0), y]) for side in (-1, 1)]
+    if cross:
+        x = np.arange(-60.0, 60.0, 1.5)
+        pts += [np.column_stack([x, np.full(len(x), 40.0 + side * 8.0)]) for side in (-1, 1)]
+    p = np.concatenate(pts) + rng.normal(0, 0.3, (sum(len(q) for q in pts), 2))
+    return np.column_stack([p @ _rot(yaw_deg).T, np.zeros(len(p))]).astype(np.float32)
+
+
+@pytest.mark.parametrize("cross", [False, True])
+def test_a_radar_standing_still_takes_its_heading_yaws_from_the_road_axes(cross):
+    own = SharedFrame("e", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 0.1]), background=_street(0.0, 1, cross))
+    other = SharedFrame("c", 0, 0.0, 0.5, ego_velocity=np.array([14.0, 0.0]), background=_street(-33.0, 2, cross))
+    yaws = heading_yaws(own, other)                           # the Ego stands still: no velocity prior
+    assert velocity_heading_yaws(own, other) is None and yaws is not None
+    gap = np.degrees(np.abs((yaws - np.radians(33.0) + np.pi) % (2 * np.pi) - np.pi)).min()
+    assert gap < 2.0, np.degrees(yaws)
+    own.ego_velocity = np.array([0.0, 15.0])                  # moving: the velocities decide
+    assert np.allclose(heading_yaws(own, other), velocity_heading_yaws(own, other))
+
+
+def test_a_background_without_a_direction_gives_no_road_axes():
+    rng = np.random.default_rng(3)
+    scatter = np.column_stack([rng.uniform(-40, 40, (300, 2)), np.zeros(300)]).astype(np.float32)
+    own = SharedFrame("e", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 0.0]), background=scatter)
+    other = SharedFrame("c", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 0.0]), background=_street(10.0, 4))
+    assert road_axis(own)[1] < ROAD_AXIS_MIN_STRENGTH < road_axis(other)[1]
+    assert heading_yaws(own, other) is None
+    assert road_axis(SharedFrame("e", 0, 0.0, 0.5)) == (pytest.approx(float("nan"), nan_ok=True), 0.0)
 
 
 def test_unknown_names_are_refused():

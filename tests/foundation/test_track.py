@@ -197,7 +197,7 @@ def test_a_turning_radar_is_a_manoeuvre_that_searches_and_loosens_the_yaw_rate()
     vehicle's yaw rate becomes uncertain; a straight drive with Doppler noise is no manoeuvre."""
     from dataclasses import replace
 
-    from mmatch.ego.base import heading_yaws, without_heading_prior
+    from mmatch.ego.base import heading_yaws, velocity_heading_yaws, without_heading_prior
 
     w = World()
     cfg = TrackConfig(max_age_s=2.0, full_search_every=10)
@@ -219,7 +219,9 @@ def test_a_turning_radar_is_a_manoeuvre_that_searches_and_loosens_the_yaw_rate()
     best = pred.track.best()
     assert best.P[4, 4] >= before + cfg.manoeuvre_yaw_rate_sigma ** 2 - 1e-9      # the CAV's yaw rate
     assert best.P[3, 3] < cfg.manoeuvre_yaw_rate_sigma ** 2                       # not the Ego's
-    assert heading_yaws(w.frame("ego", t, True), turning) is not None
-    with without_heading_prior():
-        assert heading_yaws(w.frame("ego", t, True), turning) is None
-    assert heading_yaws(w.frame("ego", t, True), turning) is not None
+    assert velocity_heading_yaws(w.frame("ego", t, True), turning) is not None
+    with without_heading_prior():                 # the velocities say nothing; the road axes still do
+        assert velocity_heading_yaws(w.frame("ego", t, True), turning) is None
+        axes = heading_yaws(w.frame("ego", t, True), turning)
+        assert np.allclose(axes, heading_yaws(w.frame("ego", t, True), w.frame("cav", t, True)), atol=np.radians(2))
+    assert velocity_heading_yaws(w.frame("ego", t, True), turning) is not None
