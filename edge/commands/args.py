@@ -16,6 +16,17 @@ def positive_int(text: str) -> int:
     return value
 
 
+def unit_interval(text: str) -> float:
+    """A number in 0-1 (a probability, a share)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in 0-1, got {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in 0-1, got {text!r}")
+    return value
+
+
 class DefaultsFormatter(argparse.HelpFormatter):
     """Appends "(default: X)" to an option's help unless its help already names a default or
     the default says nothing (None, False, SUPPRESS)."""

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from mmatch.edge.commands.args import positive_int
+from mmatch.edge.commands.args import positive_int, unit_interval
 
 HELP = "evaluate matching and alignment on a folder of mmatch-scene/1 files (table + DESIGN.md JSON)"
 
@@ -39,22 +39,12 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
                    help="factor on appearance-descriptor distances; auto: measured on the folder "
                         "without labels; 1: as the files have them")
-    p.add_argument("--confidence-threshold", type=_probability, default=None, metavar="P",
+    p.add_argument("--confidence-threshold", type=unit_interval, default=None, metavar="P",
                    help="estimates less sure than P (0-1) are 'no estimate'; default: the fitted model's "
                         "threshold; 0 emits every estimate")
     p.add_argument("--no-heading-prior", dest="heading_prior", action="store_false",
                    help="run the Ego side as if neither radar's velocity gave the road direction "
                         "(a vehicle standing still or turning)")
-
-
-def _probability(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in 0-1, got {text!r}") from None
-    if not 0.0 <= v <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in 0-1, got {text!r}")
-    return v
 
 
 def _nonneg(text: str) -> float:

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from mmatch.edge.commands.args import positive_int
+from mmatch.edge.commands.args import positive_int, unit_interval
 
 HELP = "simulate mmatch-scene/1 files (easy, hard or mixed; independent scenes or sequences) and print their realism figures"
 
@@ -27,21 +27,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="frames per sequence (20 Hz) with --sequences")
     p.add_argument("--vehicles", default=None, metavar="LO-HI",
                    help="dense traffic: LO-HI other vehicles per scene (default: 1-4 easy, 6-20 hard)")
+    p.add_argument("--stopped", type=unit_interval, default=None, metavar="SHARE",
+                   help="share of scenes (0-1) in which the Ego or the CAV stands still (its velocity gives "
+                        "no road direction; default 0); a world the scenario keeps is the seed's, stopped")
 
 
 def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
     from mmatch.sim.generate import generate
     from mmatch.errors import ConfigError
-    from mmatch.sim.world import traffic_override
+    from mmatch.sim.world import stopped_override, traffic_override
 
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ConfigError(f"--out {args.out}: exists and is not a folder")
     if args.sequences is not None:
         return _run_sequences(args)
-    with traffic_override(_vehicle_range(args.vehicles)):
+    with traffic_override(_vehicle_range(args.vehicles)), stopped_override(args.stopped):
         scenes = generate(args.out, args.n, args.seed, args.mode, args.jobs, Progress("sim"), physics=args.physics)
     print(f"wrote {len(scenes)} scenes ({args.mode}, physics {args.physics}, seed {args.seed}) to {args.out}")
+    if args.stopped:
+        who = [s.meta.get("stopped", "") for s in scenes]
+        print(f"  standing still: the Ego in {who.count('ego')}, the CAV in {who.count('cav')} scenes")
     _print_realism(scenes, args.out)
     return 0
 
@@ -55,6 +61,8 @@ def _run_sequences(args: argparse.Namespace) -> int:
 
     if args.vehicles is not None:
         raise ConfigError("--vehicles: not available with --sequences (a drive draws its own traffic)")
+    if args.stopped is not None:
+        raise ConfigError("--stopped: not available with --sequences (a drive draws its own traffic)")
     scenes = generate_sequences(args.out, args.sequences, args.frames, args.seed, args.mode, args.jobs,
                                 Progress("sim"), physics=args.physics)
     print(f"wrote {args.sequences} sequences of {args.frames} frames ({len(scenes)} scenes; {args.mode}, "

@@ -22,6 +22,7 @@ ROAD_HALF_LEN = 450.0
 # dense traffic: "LO-HI" other vehicles instead of the mode's 1-4 (easy) or 6-20 (hard); set by
 # `mmatch sim --vehicles LO-HI` (an environment variable so that worker processes see it too)
 TRAFFIC_ENV = "MMATCH_SIM_OTHER_VEHICLES"
+STOPPED_ENV = "MMATCH_SIM_STOPPED"
 
 # static scatterer kinds
 GUARDRAIL, FACADE, POLE, VEGETATION = 0, 1, 2, 3
@@ -208,6 +209,9 @@ def build_world(rng: np.random.Generator, mode: str) -> World:
     static_pts, kind, wa, wb, occ = b.result()
     vehicles, ego, cav = _traffic(rng, mode, road, lanes, two_way, relation, half_w, urban)
     meta = {"mode": mode, "road": road, "lanes": lanes, "relation": relation, "urban": bool(urban)}
+    stopped = _stop_one(rng, vehicles, ego, cav)
+    if stopped:
+        meta["stopped"] = stopped
     if other_vehicle_range() is not None:
         meta["other_vehicles"] = os.environ[TRAFFIC_ENV]
     return World(road=road, lanes=lanes, static_pts=static_pts, static_kind=kind,
@@ -342,16 +346,59 @@ def other_vehicle_range() -> tuple[int, int] | None:
     return lo, hi
 
 
-@contextlib.contextmanager
-def traffic_override(vehicles: tuple[int, int] | None) -> Iterator[None]:
+def stopped_share() -> float:
+    """Share of episodes in which the Ego or the CAV stands still (STOPPED_ENV; 0 when unset)."""
+    text = os.environ.get(STOPPED_ENV)
+    if not text:
+        return 0.0
+    try:
+        share = float(text)
+    except ValueError:
+        raise ValueError(f"{STOPPED_ENV}: {text!r} is not a number") from None
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"{STOPPED_ENV}: {text!r} is not a share in 0-1")
+    return share
+
+
+def _stop_one(rng: np.random.Generator, vehicles: Vehicles, ego: int, cav: int) -> str:
+    """With probability `stopped_share()`, the Ego or the CAV (even odds) waits at 0-1 m/s (a
+    light, a queue): its radar's velocity gives no road direction. Returns "ego", "cav" or "".
+
+    The draws come from a generator seeded by `rng`'s state without advancing it, so the
+    world is otherwise the one the same seed gives without stops (the scenario may still
+    reject it where it kept the moving one, and draw another)."""
+    share = stopped_share()
+    if share <= 0:
+        return ""
+    sub = np.random.default_rng(int(rng.bit_generator.state["state"]["state"]) % 2**63)
+    if sub.random() >= share:
+        return ""
+    who, name = (ego, "ego") if sub.random() < 0.5 else (cav, "cav")
+    vehicles.speed[who] = sub.uniform(0.0, 1.0)
+    return name
+
+
+def stopped_override(share: float | None) -> contextlib.AbstractContextManager[None]:
+    """Stop the Ego or the CAV in `share` of the episodes inside the block (and in worker
+    processes started in it)."""
+    return _environment(STOPPED_ENV, None if share is None else repr(float(share)))
+
+
+def traffic_override(vehicles: tuple[int, int] | None) -> contextlib.AbstractContextManager[None]:
     """Draw LO-HI other vehicles per episode inside the block (and in worker processes started in it)."""
-    old = os.environ.get(TRAFFIC_ENV)
-    if vehicles is not None:
-        os.environ[TRAFFIC_ENV] = f"{int(vehicles[0])}-{int(vehicles[1])}"
+    return _environment(TRAFFIC_ENV, None if vehicles is None else f"{int(vehicles[0])}-{int(vehicles[1])}")
+
+
+@contextlib.contextmanager
+def _environment(name: str, value: str | None) -> Iterator[None]:
+    """Environment variable `name` set to `value` inside the block (unchanged for None)."""
+    old = os.environ.get(name)
+    if value is not None:
+        os.environ[name] = value
     try:
         yield
     finally:
         if old is None:
-            os.environ.pop(TRAFFIC_ENV, None)
+            os.environ.pop(name, None)
         else:
-            os.environ[TRAFFIC_ENV] = old
+            os.environ[name] = old

@@ -113,3 +113,34 @@ def test_segments_block_agrees_with_every_ray_against_every_segment(n_targets):
         got = segments_block(origin, targets, seg_a, seg_b, ig)
         assert want.any() and not want.all()
         np.testing.assert_array_equal(got, want)
+
+
+def test_stopped_scenes_are_the_seeds_scenes_with_the_ego_or_the_cav_standing_still(tmp_path, capsys):
+    from mmatch.edge.cli import main
+    from mmatch.scene_io import load_scene
+
+    moving, stopped = tmp_path / "moving", tmp_path / "stopped"
+    assert main(["sim", "--out", str(moving), "--n", "6", "--seed", "7", "--mode", "hard"]) == 0
+    assert main(["sim", "--out", str(stopped), "--n", "6", "--seed", "7", "--mode", "hard", "--stopped", "1"]) == 0
+    assert "standing still: the Ego in" in capsys.readouterr().out
+    same = 0
+    for path in sorted(moving.glob("*.npz")):
+        a, b = load_scene(path), load_scene(stopped / path.name)
+        who = b.meta["stopped"]
+        assert who in ("ego", "cav") and "stopped" not in a.meta
+        assert np.hypot(*b.meta[f"{who}_velocity"]) <= 1.0 < np.hypot(*a.meta[f"{who}_velocity"])
+        if a.meta["attempt"] == b.meta["attempt"]:           # a world the scenario kept both times
+            other = "cav" if who == "ego" else "ego"
+            assert all(a.meta[k] == b.meta[k] for k in ("road", "lanes", "relation", f"{other}_velocity"))
+            same += 1
+    assert same >= 1
+
+
+def test_a_bad_stopped_share_is_refused_naming_the_option(tmp_path, capsys):
+    from mmatch.edge.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["sim", "--out", str(tmp_path / "x"), "--n", "1", "--stopped", "1.5"])
+    assert "--stopped: expected a number in 0-1" in capsys.readouterr().err
+    assert main(["sim", "--out", str(tmp_path / "x"), "--n", "1", "--stopped", "0.2", "--sequences", "2"]) != 0
+    assert "--stopped: not available with --sequences" in capsys.readouterr().err
