@@ -263,6 +263,18 @@ def _group_medians(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def _road_angles(own: SharedFrame, other: SharedFrame) -> tuple[float, float] | None:
+    """One road direction of each view (rad, own radar frame), in the order `heading_yaws`
+    counts its candidates: the velocities' when they give the heading yaws, else the road
+    axes' (`road_axes_yaws`), else None."""
+    if velocity_heading_yaws(own, other) is not None:
+        ve, vc = np.asarray(own.ego_velocity, float), np.asarray(other.ego_velocity, float)
+        return float(np.arctan2(ve[1], ve[0])), float(np.arctan2(vc[1], vc[0]))
+    if road_axes_yaws(own, other) is None:
+        return None
+    return road_axis(own)[0], road_axis(other)[0]
+
+
 def road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float = 0.35,
                            tol_mps: float = 1.5) -> np.ndarray | None:
     """(4, Va, Vb) +1 / 0 / -1: is pair (i, j) one vehicle moving along a road, for yaw candidate m?
@@ -273,7 +285,8 @@ def road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float 
     candidate m (see `heading_yaws`) direction k of the Ego is direction k - m of the CAV;
     a pair is consistent (+1) when some direction gives both views the same speed within
     tol_mps (+10 %), inconsistent (-1) when none does, and 0 when no direction is
-    observable in both. None without ego-motion estimates.
+    observable in both. The directions are the velocities' or, for a radar standing still or
+    turning, the road axes' (`_road_angles`); None without either.
     """
     return memo("road_speed_consistency", (own, other),
                 lambda: _road_speed_consistency(own, other, min_cos, tol_mps), min_cos, tol_mps, _HEADING_PRIOR.get())
@@ -281,22 +294,22 @@ def road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float 
 
 def _road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float,
                             tol_mps: float) -> np.ndarray | None:
-    if velocity_heading_yaws(own, other) is None:      # the road directions come from the velocities
+    angles = _road_angles(own, other)
+    if angles is None:
         return None
     ge, ue = radial_ground_speeds(own)
     gc, uc = radial_ground_speeds(other)
 
-    def speeds(g, u, v):
-        vhat = v / np.linalg.norm(v)
-        dirs = np.stack([np.array([np.cos(a), np.sin(a)]) for a in
-                         np.arctan2(vhat[1], vhat[0]) + np.arange(4) * np.pi / 2])   # (4, 2)
+    def speeds(g, u, angle):
+        a = angle + np.arange(4) * np.pi / 2
+        dirs = np.column_stack([np.cos(a), np.sin(a)])                           # (4, 2)
         cos = u @ dirs.T                                                           # (V, 4)
         with np.errstate(divide="ignore", invalid="ignore"):
             s = g[:, None] / cos
         return np.where(np.abs(cos) > min_cos, s, np.nan)
 
-    Se = speeds(ge, ue, np.asarray(own.ego_velocity, float))      # (Va, 4)
-    Sc = speeds(gc, uc, np.asarray(other.ego_velocity, float))    # (Vb, 4)
+    Se = speeds(ge, ue, angles[0])                                 # (Va, 4)
+    Sc = speeds(gc, uc, angles[1])                                 # (Vb, 4)
     out = np.zeros((4, len(Se), len(Sc)))
     for m in range(4):
         Sc_m = Sc[:, (np.arange(4) - m) % 4]                       # CAV speed along Ego direction k

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mmatch.ego.base import (ROAD_AXIS_MIN_STRENGTH, MatchContext, descriptor_distance, heading_yaws, road_axis,
-                             velocity_heading_yaws)
+                             road_speed_consistency, velocity_heading_yaws)
 from mmatch.ego.registry import get_aligner, get_matcher
 from mmatch.ego.rigid import icp2d, kabsch2d, se2_to_matrix
 from mmatch.errors import ConfigError
@@ -94,6 +94,38 @@ def test_a_radar_standing_still_takes_its_heading_yaws_from_the_road_axes(cross)
     assert gap < 2.0, np.degrees(yaws)
     own.ego_velocity = np.array([0.0, 15.0])                  # moving: the velocities decide
     assert np.allclose(heading_yaws(own, other), velocity_heading_yaws(own, other))
+
+
+def _seen(sender: str, radar_xy, radar_v, cars, background) -> SharedFrame:
+    """A frame of a radar at radar_xy (world, no rotation) moving at radar_v, seeing `cars`
+    (world xy, world velocity) with one return each: Doppler = (v_car - v_radar) . ray."""
+    pts = []
+    for xy, v in cars:
+        rel = np.asarray(xy, float) - radar_xy
+        u = rel / np.linalg.norm(rel)
+        pts.append([rel[0], rel[1], 0.0, float((np.asarray(v, float) - radar_v) @ u), 12.0])
+    V = len(cars)
+    return SharedFrame(sender, 0, 0.0, 0.5, ego_velocity=np.asarray(radar_v, float),
+                       vehicle_points=np.array(pts, np.float32).reshape(-1, 5),
+                       vehicle_index=np.arange(V, dtype=np.int32),
+                       vehicle_boxes=np.tile(np.array([0, 0, 10, 10, 0.9, 20], np.float32), (V, 1)),
+                       vehicle_box_index=np.arange(V, dtype=np.int32),
+                       vehicle_centers=np.array([c for c, _ in cars], np.float32) - np.float32(radar_xy),
+                       vehicle_features=np.full((V, 32), 1 / 16, np.float32), background=background)
+
+
+def test_road_speeds_compare_along_the_road_axes_when_a_radar_stands_still():
+    """An Ego waiting at a light (no velocity prior) and a CAV 30 m ahead, both on a street
+    along +y: a car at 12 m/s seen by both is one vehicle along the road under the yaw
+    candidate of the truth (0 deg); an oncoming car in the CAV's view is not it."""
+    car, oncoming = ((3.5, 50.0), (0.0, 12.0)), ((-3.5, 60.0), (0.0, -10.0))
+    own = _seen("e", np.zeros(2), np.array([0.0, 0.2]), [car], _street(0.0, 5))
+    other = _seen("c", np.array([0.0, 30.0]), np.array([0.0, 14.0]), [car, oncoming], _street(0.0, 6) - [0, 30, 0])
+    assert velocity_heading_yaws(own, other) is None
+    yaws = heading_yaws(own, other)
+    m = int(np.argmin(np.abs((yaws + np.pi) % (2 * np.pi) - np.pi)))      # the candidate nearest 0 deg
+    speed = road_speed_consistency(own, other)
+    assert speed is not None and speed[m, 0, 0] == 1.0 and speed[m, 0, 1] == -1.0
 
 
 def test_a_background_without_a_direction_gives_no_road_axes():
