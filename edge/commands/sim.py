@@ -27,6 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="frames per sequence (20 Hz) with --sequences")
     p.add_argument("--vehicles", default=None, metavar="LO-HI",
                    help="dense traffic: LO-HI other vehicles per scene (default: 1-4 easy, 6-20 hard)")
+    p.add_argument("--junction", default=None, metavar="LO-HI",
+                   help="angle between the crossing roads of a junction drawn from LO-HI deg (45-135; "
+                        "default: 90, as the heading priors assume)")
     p.add_argument("--stopped", type=unit_interval, default=None, metavar="SHARE",
                    help="share of scenes (0-1) in which the Ego or the CAV stands still (its velocity gives "
                         "no road direction; default 0); a world the scenario keeps is the seed's, stopped")
@@ -36,13 +39,14 @@ def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
     from mmatch.sim.generate import generate
     from mmatch.errors import ConfigError
-    from mmatch.sim.world import stopped_override, traffic_override
+    from mmatch.sim.world import junction_override, stopped_override, traffic_override
 
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise ConfigError(f"--out {args.out}: exists and is not a folder")
     if args.sequences is not None:
         return _run_sequences(args)
-    with traffic_override(_vehicle_range(args.vehicles)), stopped_override(args.stopped):
+    with traffic_override(_vehicle_range(args.vehicles)), stopped_override(args.stopped), \
+            junction_override(_junction_range(args.junction)):
         scenes = generate(args.out, args.n, args.seed, args.mode, args.jobs, Progress("sim"), physics=args.physics)
     print(f"wrote {len(scenes)} scenes ({args.mode}, physics {args.physics}, seed {args.seed}) to {args.out}")
     if args.stopped:
@@ -63,6 +67,8 @@ def _run_sequences(args: argparse.Namespace) -> int:
         raise ConfigError("--vehicles: not available with --sequences (a drive draws its own traffic)")
     if args.stopped is not None:
         raise ConfigError("--stopped: not available with --sequences (a drive draws its own traffic)")
+    if args.junction is not None:
+        raise ConfigError("--junction: not available with --sequences (a drive's turns assume 90 deg)")
     scenes = generate_sequences(args.out, args.sequences, args.frames, args.seed, args.mode, args.jobs,
                                 Progress("sim"), physics=args.physics)
     print(f"wrote {args.sequences} sequences of {args.frames} frames ({len(scenes)} scenes; {args.mode}, "
@@ -95,15 +101,11 @@ def _print_realism(scenes: list, out: str) -> None:
     (Path(out) / "realism.json").write_text(json.dumps({"figures": fig, "within_target": ok}, indent=2))
 
 
-def _vehicle_range(text: str | None) -> tuple[int, int] | None:
-    from mmatch.errors import ConfigError
+def _junction_range(text: str | None) -> tuple[float, float] | None:
+    from mmatch.sim.world import parse_range
+    return None if text is None else parse_range(text, "--junction", 45, 135)
 
-    if text is None:
-        return None
-    try:
-        lo, hi = (int(x) for x in text.split("-"))
-    except ValueError:
-        raise ConfigError(f"--vehicles: {text!r} is not LO-HI (two whole numbers, e.g. 30-40)") from None
-    if lo < 0 or hi < lo or hi > 1000:
-        raise ConfigError(f"--vehicles: {text!r} needs 0 <= LO <= HI <= 1000")
-    return lo, hi
+
+def _vehicle_range(text: str | None) -> tuple[int, int] | None:
+    from mmatch.sim.world import parse_range
+    return None if text is None else parse_range(text, "--vehicles", 0, 1000, int)

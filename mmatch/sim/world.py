@@ -23,6 +23,7 @@ ROAD_HALF_LEN = 450.0
 # `mmatch sim --vehicles LO-HI` (an environment variable so that worker processes see it too)
 TRAFFIC_ENV = "MMATCH_SIM_OTHER_VEHICLES"
 STOPPED_ENV = "MMATCH_SIM_STOPPED"
+JUNCTION_ENV = "MMATCH_SIM_JUNCTION_DEG"
 
 # static scatterer kinds
 GUARDRAIL, FACADE, POLE, VEGETATION = 0, 1, 2, 3
@@ -161,10 +162,14 @@ class _Builder:
         return pts, kind, wa, wb, np.array(self.occ, bool)
 
 
-def _rotate_seg(pts: np.ndarray) -> np.ndarray:
-    """Rotate layout-frame xy by +90 deg (a road along y becomes a road along x)."""
-    out = pts.copy()
-    out[..., 0], out[..., 1] = -pts[..., 1], pts[..., 0]
+def _rotate_seg(pts: np.ndarray, extra: float = 0.0) -> np.ndarray:
+    """Rotate layout-frame xy by +90 deg (a road along y becomes a road along x), and by
+    `extra` rad more (an oblique junction)."""
+    out = np.asarray(pts, float).copy()
+    out[..., 0], out[..., 1] = -out[..., 1].copy(), out[..., 0].copy()
+    if extra:
+        c, s = np.cos(extra), np.sin(extra)
+        out[..., 0], out[..., 1] = c * out[..., 0] - s * out[..., 1], s * out[..., 0] + c * out[..., 1]
     return out
 
 
@@ -189,6 +194,7 @@ def build_world(rng: np.random.Generator, mode: str) -> World:
     pole_pitch = float(rng.uniform(20, 35))
     b = _Builder(rng)
     gap = half_w + 10.0
+    skew = _junction_skew(rng) if road != "straight" else 0.0
     if road == "straight":
         b.roadside(half_w, -ROAD_HALF_LEN, ROAD_HALF_LEN, urban, pole_pitch)
     else:
@@ -201,10 +207,10 @@ def build_world(rng: np.random.Generator, mode: str) -> World:
             b.buildings_along(half_w + rng.uniform(3, 8), -gap, gap, 1)
         sub.roadside(half_w, gap, ROAD_HALF_LEN, urban, pole_pitch)  # rotated: lies at x < -gap
         p, k, wa, wb, occ = sub.result()
-        b.pts.append(np.column_stack([_rotate_seg(p[:, :2]), p[:, 2]]))
+        b.pts.append(np.column_stack([_rotate_seg(p[:, :2], skew), p[:, 2]]))
         b.kind.append(k)
-        b.wa.extend(_rotate_seg(wa))
-        b.wb.extend(_rotate_seg(wb))
+        b.wa.extend(_rotate_seg(wa, skew))
+        b.wb.extend(_rotate_seg(wb, skew))
         b.occ.extend(occ.tolist())
     static_pts, kind, wa, wb, occ = b.result()
     vehicles, ego, cav = _traffic(rng, mode, road, lanes, two_way, relation, half_w, urban)
@@ -212,6 +218,9 @@ def build_world(rng: np.random.Generator, mode: str) -> World:
     stopped = _stop_one(rng, vehicles, ego, cav)
     if stopped:
         meta["stopped"] = stopped
+    if skew:
+        _skew_cross_traffic(vehicles, skew)
+        meta["junction_deg"] = round(90.0 + float(np.degrees(skew)), 2)
     if other_vehicle_range() is not None:
         meta["other_vehicles"] = os.environ[TRAFFIC_ENV]
     return World(road=road, lanes=lanes, static_pts=static_pts, static_kind=kind,
@@ -335,15 +344,51 @@ def other_vehicle_range() -> tuple[int, int] | None:
     Lanes hold a vehicle every 7.5 m at most, so very high counts saturate the road.
     """
     text = os.environ.get(TRAFFIC_ENV)
-    if not text:
-        return None
+    return parse_range(text, TRAFFIC_ENV, 0, 1000, int) if text else None
+
+
+def parse_range(text: str, key: str, low: float, high: float, kind: type = float) -> tuple:
+    """'LO-HI' -> (LO, HI) of `kind` with low <= LO <= HI <= high; a broken value names `key`."""
+    from mmatch.errors import ConfigError
+
     try:
-        lo, hi = (int(x) for x in text.split("-"))
+        lo, hi = (kind(x) for x in str(text).split("-"))
     except ValueError:
-        raise ValueError(f"{TRAFFIC_ENV}: {text!r} is not LO-HI (two whole numbers)") from None
-    if lo < 0 or hi < lo:
-        raise ValueError(f"{TRAFFIC_ENV}: {text!r} needs 0 <= LO <= HI")
+        raise ConfigError(f"{key}: {text!r} is not LO-HI (two {'whole ' if kind is int else ''}numbers)") from None
+    if not low <= lo <= hi <= high:
+        raise ConfigError(f"{key}: {text!r} needs {low} <= LO <= HI <= {high}")
     return lo, hi
+
+
+def junction_range() -> tuple[float, float] | None:
+    """(LO, HI) angle in deg between the crossing roads of a junction (JUNCTION_ENV), else None (90)."""
+    text = os.environ.get(JUNCTION_ENV)
+    return parse_range(text, JUNCTION_ENV, 45, 135) if text else None
+
+
+def _junction_skew(rng: np.random.Generator) -> float:
+    """The cross road's turn away from the perpendicular (rad): 0 unless `junction_range()`
+    asks for oblique junctions; drawn from a generator seeded by `rng`'s state without
+    advancing it (as `_stop_one`), so 90-deg worlds are those of the same seed."""
+    rng_deg = junction_range()
+    if rng_deg is None:
+        return 0.0
+    sub = np.random.default_rng(int(rng.bit_generator.state["state"]["state"]) % 2**61 + 7)
+    return float(np.radians(sub.uniform(*rng_deg) - 90.0))
+
+
+def _skew_cross_traffic(vehicles: Vehicles, skew: float) -> None:
+    """Turn the vehicles on the cross road (those driving along x) about the junction by skew."""
+    along_x = np.abs(np.sin(vehicles.yaw)) < np.sin(np.radians(20.0))
+    c, s = np.cos(skew), np.sin(skew)
+    p = vehicles.pos0[along_x]
+    vehicles.pos0[along_x] = np.column_stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]])
+    vehicles.yaw[along_x] += skew
+
+
+def junction_override(degrees: tuple[float, float] | None) -> contextlib.AbstractContextManager[None]:
+    """Junction angles drawn from LO-HI deg inside the block (and in worker processes started in it)."""
+    return _environment(JUNCTION_ENV, None if degrees is None else f"{float(degrees[0])}-{float(degrees[1])}")
 
 
 def stopped_share() -> float:

@@ -136,7 +136,7 @@ def test_stopped_scenes_are_the_seeds_scenes_with_the_ego_or_the_cav_standing_st
     assert same >= 1
 
 
-def test_a_bad_stopped_share_is_refused_naming_the_option(tmp_path, capsys):
+def test_a_bad_stopped_share_or_junction_is_refused_naming_the_option(tmp_path, capsys):
     from mmatch.edge.cli import main
 
     with pytest.raises(SystemExit):
@@ -144,3 +144,25 @@ def test_a_bad_stopped_share_is_refused_naming_the_option(tmp_path, capsys):
     assert "--stopped: expected a number in 0-1" in capsys.readouterr().err
     assert main(["sim", "--out", str(tmp_path / "x"), "--n", "1", "--stopped", "0.2", "--sequences", "2"]) != 0
     assert "--stopped: not available with --sequences" in capsys.readouterr().err
+    assert main(["sim", "--out", str(tmp_path / "x"), "--n", "1", "--junction", "30-60"]) != 0
+    assert "--junction: '30-60' needs 45 <= LO <= HI <= 135" in capsys.readouterr().err
+
+
+def test_oblique_junctions_turn_the_cross_road_and_its_traffic(tmp_path):
+    from mmatch.edge.cli import main
+    from mmatch.scene_io import load_scene
+
+    assert main(["sim", "--out", str(tmp_path), "--n", "12", "--seed", "3", "--mode", "hard",
+                 "--junction", "60-60"]) == 0
+    crossing = 0
+    for path in sorted(tmp_path.glob("*.npz")):
+        s = load_scene(path)
+        if s.meta["road"] == "straight":
+            assert "junction_deg" not in s.meta
+            continue
+        assert s.meta["junction_deg"] == 60.0
+        if s.meta["relation"] == "perpendicular":      # the CAV drives the cross road: 30 deg off 90
+            yaw = np.degrees(np.arctan2(s.gt_T_ego_cav[1, 0], s.gt_T_ego_cav[0, 0])) % 180.0
+            assert min(abs(yaw - 60.0), abs(yaw - 120.0)) < 10.0, yaw     # 90 deg would be 30 off
+            crossing += 1
+    assert crossing >= 1
