@@ -134,6 +134,14 @@ def test_stopped_scenes_are_the_seeds_scenes_with_the_ego_or_the_cav_standing_st
             assert all(a.meta[k] == b.meta[k] for k in ("road", "lanes", "relation", f"{other}_velocity"))
             same += 1
     assert same >= 1
+    # a radar standing still shows no angle noise in its background Doppler: the realism figure
+    # measures the moving radars only
+    scenes = [load_scene(p) for p in sorted(stopped.glob("*.npz"))]
+    key = "median_background_doppler_residual_mps"
+    with_stops = realism_figures(scenes)[key]
+    for sc in scenes:
+        sc.meta.pop("stopped")
+    assert realism_figures(scenes)[key] < with_stops
 
 
 def test_a_bad_stopped_share_or_junction_is_refused_naming_the_option(tmp_path, capsys):
