@@ -104,9 +104,7 @@ def evaluate_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> dict:
 def evaluate_with(scene: Scene, cfg: EvalConfig, fuser=None, prepared: tuple | None = None) -> tuple[dict, object]:
     """`evaluate_scene` with a given Fuser (default: one per config, no tracking) and, when the
     caller has it already, `prepare_scene`'s output; returns (per-scene result, FusionResult)."""
-    from mmatch.ego.base import MatchContext
-
-    from mmatch.ego.base import without_heading_prior
+    from mmatch.ego.base import MatchContext, without_heading_prior
 
     own, received, payload, stages = prepared if prepared is not None else prepare_scene(scene, cfg)
     scale = 1.0 if cfg.descriptor_scale is None else cfg.descriptor_scale

@@ -149,26 +149,40 @@ def without_heading_prior() -> Iterator[None]:
 def heading_yaws(own: SharedFrame, other: SharedFrame) -> np.ndarray | None:
     """Candidate yaws (rad) of T_ego_cav from the road directions both views show, or None.
 
-    Vehicles drive along the road, and roads meet at right angles, so the two radars'
-    velocity directions differ by a multiple of 90 deg: yaw = ang(v_own) - ang(v_other)
-    + k * pi / 2 (`velocity_heading_yaws`). Where a radar stands still or turns, its
-    background's road axes stand in (`road_axes_yaws`). None when neither gives them.
+    Vehicles drive along the road, and roads meet at right angles, so one road direction of
+    each view (`road_angles`) fixes the yaw up to a multiple of 90 deg: yaw = a_own - a_other
+    + k * pi / 2. The directions are the radars' velocities (`velocity_heading_yaws`) or,
+    where a radar stands still or turns, the backgrounds' road axes. None when neither gives them.
     """
-    yaws = velocity_heading_yaws(own, other)
-    return yaws if yaws is not None else road_axes_yaws(own, other)
+    return _yaws(road_angles(own, other))
 
 
 def velocity_heading_yaws(own: SharedFrame, other: SharedFrame) -> np.ndarray | None:
-    """The heading yaws of `heading_yaws` from the two radars' own velocities, or None when
-    either stands still (below MIN_SPEED_FOR_HEADING) or has no ego-motion estimate, and
+    """The heading yaws of `heading_yaws` from the two radars' own velocities alone, or None
+    when either stands still (below MIN_SPEED_FOR_HEADING) or has no ego-motion estimate, and
     within `without_heading_prior` (a turning vehicle's velocity is not along the road)."""
+    return _yaws(_velocity_angles(own, other))
+
+
+def road_angles(own: SharedFrame, other: SharedFrame) -> tuple[float, float] | None:
+    """One road direction of each view (rad, its own radar frame): the velocities' when both
+    give one, else the road axes' (`road_axis`) when both backgrounds show a clear direction,
+    else None. `heading_yaws` counts its candidates from these."""
+    angles = _velocity_angles(own, other)
+    return angles if angles is not None else _axis_angles(own, other)
+
+
+def _yaws(angles: tuple[float, float] | None) -> np.ndarray | None:
+    return None if angles is None else angles[0] - angles[1] + np.arange(4) * np.pi / 2
+
+
+def _velocity_angles(own: SharedFrame, other: SharedFrame) -> tuple[float, float] | None:
     ve, vc = np.asarray(own.ego_velocity, float), np.asarray(other.ego_velocity, float)
     if not (_HEADING_PRIOR.get() and np.all(np.isfinite(ve)) and np.all(np.isfinite(vc))):
         return None
     if np.linalg.norm(ve) < MIN_SPEED_FOR_HEADING or np.linalg.norm(vc) < MIN_SPEED_FOR_HEADING:
         return None
-    base = np.arctan2(ve[1], ve[0]) - np.arctan2(vc[1], vc[0])
-    return base + np.arange(4) * np.pi / 2
+    return float(np.arctan2(ve[1], ve[0])), float(np.arctan2(vc[1], vc[0]))
 
 
 ROAD_AXIS_PAIR_M = 5.0          # background point pairs closer than this vote for a direction
@@ -199,14 +213,11 @@ def _road_axis(bg: np.ndarray) -> tuple[float, float]:
     return float(np.angle(m) / 4), float(abs(m))
 
 
-def road_axes_yaws(own: SharedFrame, other: SharedFrame) -> np.ndarray | None:
-    """Candidate yaws (rad) of T_ego_cav from the two views' road axes (`road_axis`), or None
-    when either view's background shows no clear direction."""
+def _axis_angles(own: SharedFrame, other: SharedFrame) -> tuple[float, float] | None:
+    """The two views' road axes (`road_axis`), or None when either shows no clear direction."""
     a_own, s_own = road_axis(own)
     a_other, s_other = road_axis(other)
-    if min(s_own, s_other) < ROAD_AXIS_MIN_STRENGTH:
-        return None
-    return a_own - a_other + np.arange(4) * np.pi / 2
+    return None if min(s_own, s_other) < ROAD_AXIS_MIN_STRENGTH else (a_own, a_other)
 
 
 def yaw_gap(yaw: np.ndarray, candidates: np.ndarray) -> np.ndarray:
@@ -263,18 +274,6 @@ def _group_medians(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def _road_angles(own: SharedFrame, other: SharedFrame) -> tuple[float, float] | None:
-    """One road direction of each view (rad, own radar frame), in the order `heading_yaws`
-    counts its candidates: the velocities' when they give the heading yaws, else the road
-    axes' (`road_axes_yaws`), else None."""
-    if velocity_heading_yaws(own, other) is not None:
-        ve, vc = np.asarray(own.ego_velocity, float), np.asarray(other.ego_velocity, float)
-        return float(np.arctan2(ve[1], ve[0])), float(np.arctan2(vc[1], vc[0]))
-    if road_axes_yaws(own, other) is None:
-        return None
-    return road_axis(own)[0], road_axis(other)[0]
-
-
 def road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float = 0.35,
                            tol_mps: float = 1.5) -> np.ndarray | None:
     """(4, Va, Vb) +1 / 0 / -1: is pair (i, j) one vehicle moving along a road, for yaw candidate m?
@@ -286,7 +285,7 @@ def road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float 
     a pair is consistent (+1) when some direction gives both views the same speed within
     tol_mps (+10 %), inconsistent (-1) when none does, and 0 when no direction is
     observable in both. The directions are the velocities' or, for a radar standing still or
-    turning, the road axes' (`_road_angles`); None without either.
+    turning, the road axes' (`road_angles`); None without either.
     """
     return memo("road_speed_consistency", (own, other),
                 lambda: _road_speed_consistency(own, other, min_cos, tol_mps), min_cos, tol_mps, _HEADING_PRIOR.get())
@@ -294,7 +293,7 @@ def road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float 
 
 def _road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float,
                             tol_mps: float) -> np.ndarray | None:
-    angles = _road_angles(own, other)
+    angles = road_angles(own, other)
     if angles is None:
         return None
     ge, ue = radial_ground_speeds(own)

@@ -373,8 +373,7 @@ def _junction_skew(rng: np.random.Generator) -> float:
     rng_deg = junction_range()
     if rng_deg is None:
         return 0.0
-    sub = np.random.default_rng(int(rng.bit_generator.state["state"]["state"]) % 2**61 + 7)
-    return float(np.radians(sub.uniform(*rng_deg) - 90.0))
+    return float(np.radians(_detached(rng, 2**61, 7).uniform(*rng_deg) - 90.0))
 
 
 def _skew_cross_traffic(vehicles: Vehicles, skew: float) -> None:
@@ -384,6 +383,12 @@ def _skew_cross_traffic(vehicles: Vehicles, skew: float) -> None:
     p = vehicles.pos0[along_x]
     vehicles.pos0[along_x] = np.column_stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]])
     vehicles.yaw[along_x] += skew
+
+
+def _detached(rng: np.random.Generator, modulus: int, offset: int = 0) -> np.random.Generator:
+    """A generator seeded by `rng`'s state (modulo `modulus`, plus `offset`) without advancing
+    it: draws for an opt-in situation leave the seed's world as it is."""
+    return np.random.default_rng(int(rng.bit_generator.state["state"]["state"]) % modulus + offset)
 
 
 def junction_override(degrees: tuple[float, float] | None) -> contextlib.AbstractContextManager[None]:
@@ -415,7 +420,7 @@ def _stop_one(rng: np.random.Generator, vehicles: Vehicles, ego: int, cav: int) 
     share = stopped_share()
     if share <= 0:
         return ""
-    sub = np.random.default_rng(int(rng.bit_generator.state["state"]["state"]) % 2**63)
+    sub = _detached(rng, 2**63)
     if sub.random() >= share:
         return ""
     who, name = (ego, "ego") if sub.random() < 0.5 else (cav, "cav")
