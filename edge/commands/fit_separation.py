@@ -16,12 +16,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threshold", type=float, default=0.5, help="probability above which a point joins a box")
     p.add_argument("--box-threshold", type=float, default=0.15,
                    help="probability of being a vehicle below which a box is not shared")
+    p.add_argument("--no-context", dest="context", action="store_false",
+                   help="skip the context stage (each point judged again against its box's core; in its "
+                        "place the CAV side keeps each vehicle's main DBSCAN cluster)")
 
 
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from mmatch.cav.membership import MODEL_PATH, box_training_rows, fit_box_model, fit_membership, training_pairs
+    from mmatch.cav.membership import (CONTEXT_FEATURES, FEATURES, MODEL_PATH, box_training_rows,
+                                       context_training_pairs, fit_box_model, fit_membership, training_pairs)
     from mmatch.errors import ParseError
     from mmatch.scene_io import load_scene
 
@@ -38,6 +42,14 @@ def run(args: argparse.Namespace) -> int:
         model = fit_membership(X, y, seed=args.seed, threshold=args.threshold, meta={"folders": args.folders})
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
+    if args.context:
+        X2, y2 = context_training_pairs(views, model)
+        try:
+            context = fit_membership(X2, y2, hidden=(64, 32), seed=args.seed, threshold=args.threshold,
+                                     features=FEATURES + CONTEXT_FEATURES)
+        except ValueError as exc:
+            raise ParseError(str(exc)) from exc
+        model = replace(model, context=context)
     Xb, yb = box_training_rows(views, model)
     try:
         model = replace(model, box=fit_box_model(Xb, yb, args.box_threshold))
@@ -47,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
     out.write_text(model.to_json() + "\n")
     p = model.box.probability(Xb)
     drop = p < model.box.threshold
+    stage2 = f", context stage {model.context.meta['validation_score']:.3f}" if model.context is not None else ""
     print(f"fit on {len(X)} candidate pairs of {len(views)} views ({y.mean():.3f} true); "
-          f"validation accuracy {model.meta['validation_score']:.3f}; boxes: {len(Xb)}, false ones not shared "
+          f"validation accuracy {model.meta['validation_score']:.3f}{stage2}; boxes: {len(Xb)}, false ones not shared "
           f"{drop[~yb].mean():.2f}, real ones lost {drop[yb].mean():.3f} (on the training views); wrote {out}")
     return 0

@@ -1,13 +1,15 @@
 """The CAV-side pipeline of one frame: radar points + camera boxes -> SharedFrame.
 
-ego-motion fit (stationary vs moving) -> frustum separation per box -> DBSCAN per vehicle
+ego-motion fit (stationary vs moving) -> learned point-to-box membership (or the fixed frustum
+tests) -> DBSCAN per vehicle when the membership has no context stage
 -> DBSCAN + voxel sketch of the background. Both vehicles run it on their own data.
 
 Choices where the paper is silent (measured on simulated scenes, see the tests):
 - every box scoring >= `separation.min_box_score` becomes a vehicle of the frame (so the
   matcher sees every detection with its descriptor), in box order;
 - a box is a moving vehicle when it claims moving points, at least `moving_ratio` times
-  as many as stationary ones; it then shares only its moving points (main DBSCAN cluster),
+  as many as stationary ones; it then shares only its moving points (main DBSCAN cluster, or
+  what the membership's context stage kept),
   and the stationary points it claimed stay in the background;
 - any other box is a parked car (or a vehicle crossing the line of sight, whose Doppler
   looks stationary): it shares the stationary points projecting into it near its depth
@@ -40,7 +42,7 @@ from mmatch.cav.clustering import main_clusters
 from mmatch.cav.config import CavConfig
 from mmatch.cav.egomotion import EgoMotion, fit_egomotion
 from mmatch.cav.frustum import Separation, centres_from_boxes, grow, project, separate
-from mmatch.cav.membership import assign, box_features, candidates
+from mmatch.cav.membership import CandidateScene, assign, box_features, candidates
 from mmatch.cav.membership import load_model as load_membership
 from mmatch.cav.plausibility import duplicates, see_through
 from mmatch.errors import MMatchError
@@ -156,7 +158,9 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     if model is not None and proj is not None:
         cands = candidates(points, vb, camera, proj, ego.residual, moving, ego.velocity if ego.ok else None,
                            cfg.radar)
-        learned_owner, prob = assign(cands, len(points), model)
+        scene = CandidateScene(points, proj, ego.residual, stationary_doppler_sigma(points, ego.velocity, cfg.radar),
+                               vb, camera)
+        learned_owner, prob = assign(cands, len(points), model, scene=scene)
         if model.box is not None and len(vb):
             real = model.box.probability(box_features(cands, prob, learned_owner, moving, vb, camera, proj)) \
                 >= model.box.threshold
@@ -202,14 +206,18 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     t2 = time.perf_counter()
     timings["separation"] = (t2 - t1) * 1e3
 
-    # ---- 3. DBSCAN per vehicle
-    parts = []
-    parked_cfg = replace(cfg.clustering, eps_m=cfg.clustering.parked_eps_m)
-    for group, ccfg in ((candidate & ~owned_by_parked, cfg.clustering),
-                        (candidate & owned_by_parked, parked_cfg)):
-        idx = np.flatnonzero(group)
-        parts.append(idx[main_clusters(points[idx, :2], ego.residual[idx], moving[idx], owner[idx], ccfg)])
-    veh_idx = np.concatenate(parts)
+    # ---- 3. DBSCAN per vehicle (the membership's context stage judged each point against its
+    # box's core already: distance, range, wheel band)
+    if model is not None and model.context is not None:
+        veh_idx = np.flatnonzero(candidate)
+    else:
+        parts = []
+        parked_cfg = replace(cfg.clustering, eps_m=cfg.clustering.parked_eps_m)
+        for group, ccfg in ((candidate & ~owned_by_parked, cfg.clustering),
+                            (candidate & owned_by_parked, parked_cfg)):
+            idx = np.flatnonzero(group)
+            parts.append(idx[main_clusters(points[idx, :2], ego.residual[idx], moving[idx], owner[idx], ccfg)])
+        veh_idx = np.concatenate(parts)
     veh_idx = veh_idx[np.argsort(owner[veh_idx], kind="stable")]
     t3 = time.perf_counter()
     timings["clustering"] = (t3 - t2) * 1e3
