@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmatch.ego.base import MatchContext
+from mmatch.ego.base import FAR_SIDE_SHIFT_M, MatchContext
 from mmatch.ego.observations import ObservationModel, mahalanobis, observe
 from mmatch.ego.refine import refine
 from mmatch.ego.registry import get_aligner, get_matcher
@@ -43,7 +43,7 @@ def test_covariance_is_long_along_the_line_of_sight():
     obs = observe(_frame([[0.0, 30.0], None], np.array([[0.0, 31.0], [30.0, 0.0]])), m)
     w, v = np.linalg.eigh(obs.cov[0])                  # vehicle with points, straight ahead
     assert np.sqrt(w[1]) == pytest.approx(m.along_points_m) and abs(v[1, 1]) == pytest.approx(1.0)
-    assert np.sqrt(w[0]) == pytest.approx(m.across_m + m.across_rad * 31.4, rel=1e-3)
+    assert np.sqrt(w[0]) == pytest.approx(m.across_m + m.across_rad * (30.0 + FAR_SIDE_SHIFT_M), rel=1e-3)
     w, v = np.linalg.eigh(obs.cov[1])                  # camera only, to the right: depth error
     assert np.sqrt(w[1]) == pytest.approx(m.along_depth_m + m.along_depth_rel * 30.0)
     assert abs(v[0, 1]) == pytest.approx(1.0)
