@@ -161,7 +161,10 @@ class PlausibilityConfig:
 
 @dataclass(frozen=True)
 class ClusteringConfig:
-    """DBSCAN per vehicle over (x, y, velocity_scale * doppler residual).
+    """DBSCAN per vehicle over (x, y, velocity_scale * doppler residual): each vehicle keeps its
+    main cluster. Not run when the learned membership has a context stage (it judges each point
+    against its box's core itself); it still runs under the fixed frustum tests, without an
+    ego-motion estimate, and with a membership model file that has no context stage.
 
     eps_m: DBSCAN radius in the scaled space, m; min_samples: DBSCAN core size.
     velocity_scale_s: metres per m/s of Doppler residual. A vehicle's points agree in
