@@ -182,11 +182,13 @@ class Candidates:
 
 def candidates(points: np.ndarray, boxes: np.ndarray, camera: CameraModel, proj: Projection,
                residual: np.ndarray, moving: np.ndarray, velocity: np.ndarray | None,
-               accuracy: RadarAccuracyConfig = RadarAccuracyConfig()) -> Candidates:
+               accuracy: RadarAccuracyConfig = RadarAccuracyConfig(),
+               doppler_sigma: np.ndarray | None = None) -> Candidates:
     """Every point near every box, with the features the model reads (see FEATURES).
 
     residual / moving: from the ego-motion fit (zeros / False without an estimate);
-    velocity: the fitted radar velocity (vx, vy) or None.
+    velocity: the fitted radar velocity (vx, vy) or None; doppler_sigma: (N,) the points'
+    `stationary_doppler_sigma` under it, when the caller has it already.
     """
     n, m = len(points), len(boxes)
     empty = Candidates(np.zeros(0, int), np.zeros(0, int), np.zeros((0, len(FEATURES))))
@@ -195,7 +197,10 @@ def candidates(points: np.ndarray, boxes: np.ndarray, camera: CameraModel, proj:
     b = np.asarray(boxes, np.float64)
     fx = float(camera.K[0, 0])
     sig = sigma_azimuth(points, accuracy)
-    sd = stationary_doppler_sigma(points, velocity, accuracy) if velocity is not None else np.ones(n)
+    if doppler_sigma is not None:
+        sd = doppler_sigma
+    else:
+        sd = stationary_doppler_sigma(points, velocity, accuracy) if velocity is not None else np.ones(n)
     u, v = proj.uv[:, 0:1], proj.uv[:, 1:2]
     uc, hw = (b[:, 0] + b[:, 2]) / 2, np.maximum((b[:, 2] - b[:, 0]) / 2, 1.0)
     vc, hh = (b[:, 1] + b[:, 3]) / 2, np.maximum((b[:, 3] - b[:, 1]) / 2, 1.0)
@@ -315,8 +320,8 @@ def _most_probable(cands: Candidates, n_points: int, p: np.ndarray, threshold: f
 
 
 def _labelled_candidates(views: list, accuracy: RadarAccuracyConfig, egomotion=None, labels: bool = True):
-    """(view, ego-motion fit, projection, candidates) of each usable view (`View`s with box ids,
-    and point labels when `labels`)."""
+    """(view, candidates, the context stage's inputs or None) of each usable view (`View`s with
+    box ids, and point labels when `labels`), and the view's ego-motion fit and projection."""
     from mmatch.cav.config import EgoMotionConfig
     from mmatch.cav.egomotion import fit_egomotion
     from mmatch.cav.frustum import project
@@ -326,17 +331,12 @@ def _labelled_candidates(views: list, accuracy: RadarAccuracyConfig, egomotion=N
             continue
         ego = fit_egomotion(v.points, egomotion or EgoMotionConfig(), accuracy)
         pr = project(v.points[:, :3], v.camera)
+        sd = stationary_doppler_sigma(v.points, ego.velocity, accuracy) if ego.ok else None
         c = candidates(v.points, v.boxes, v.camera, pr, ego.residual, ego.moving,
-                       ego.velocity if ego.ok else None, accuracy)
-        yield v, ego, pr, c
-
-
-def _scene(v, ego, pr, accuracy: RadarAccuracyConfig) -> CandidateScene | None:
-    """The context stage's inputs of one view (None without an ego-motion estimate, as at run time)."""
-    if not ego.ok:
-        return None
-    return CandidateScene(v.points, pr, ego.residual, stationary_doppler_sigma(v.points, ego.velocity, accuracy),
-                          v.boxes, v.camera)
+                       ego.velocity if ego.ok else None, accuracy, sd)
+        # the context stage runs only with an ego-motion estimate, as at run time
+        scene = CandidateScene(v.points, pr, ego.residual, sd, v.boxes, v.camera) if ego.ok else None
+        yield v, c, scene, ego, pr
 
 
 def _truth(v, c: Candidates) -> np.ndarray:
@@ -348,7 +348,7 @@ def training_pairs(views: list, accuracy: RadarAccuracyConfig = RadarAccuracyCon
     """Features (C, F) and truth (C,) of every candidate pair of labelled views (`View`s with
     point_labels and box_ids): a pair is true when the point's label is the box's vehicle."""
     Xs, ys = [], []
-    for v, _, _, c in _labelled_candidates(views, accuracy, egomotion):
+    for v, c, _, _, _ in _labelled_candidates(views, accuracy, egomotion):
         Xs.append(c.features)
         ys.append(_truth(v, c))
     X = np.vstack(Xs) if Xs else np.zeros((0, len(FEATURES)))
@@ -362,8 +362,7 @@ def context_training_pairs(views: list, model: MembershipModel,
     the candidates of labelled views with an ego-motion estimate."""
     first = replace(model, context=None)
     Xs, ys = [], []
-    for v, ego, pr, c in _labelled_candidates(views, accuracy, egomotion):
-        scene = _scene(v, ego, pr, accuracy)
+    for v, c, scene, _, _ in _labelled_candidates(views, accuracy, egomotion):
         if scene is None or len(c.point) == 0:
             continue
         owner, p = assign(c, len(v.points), first)
@@ -377,8 +376,8 @@ def box_training_rows(views: list, model: MembershipModel, accuracy: RadarAccura
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Box features (B, len(BOX_FEATURES)) under `model`'s assignment, and truth (B,): a real vehicle."""
     Xs, ys = [], []
-    for v, ego, pr, c in _labelled_candidates(views, accuracy, labels=False):
-        owner, p = assign(c, len(v.points), model, scene=_scene(v, ego, pr, accuracy))
+    for v, c, scene, ego, pr in _labelled_candidates(views, accuracy, labels=False):
+        owner, p = assign(c, len(v.points), model, scene=scene)
         Xs.append(box_features(c, p, owner, ego.moving, v.boxes, v.camera, pr))
         ys.append(v.box_ids >= 0)
     X = np.vstack(Xs) if Xs else np.zeros((0, len(BOX_FEATURES)))

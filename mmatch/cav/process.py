@@ -155,11 +155,10 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     # the learned membership reads Doppler against the stationary world: without an ego-motion
     # estimate the fixed frustum tests below decide
     model = load_membership(cfg.separation.membership_model) if cfg.separation.learned and ego.ok else None
+    sig_d = stationary_doppler_sigma(points, ego.velocity, cfg.radar) if ego.ok else None
     if model is not None and proj is not None:
-        cands = candidates(points, vb, camera, proj, ego.residual, moving, ego.velocity if ego.ok else None,
-                           cfg.radar)
-        scene = CandidateScene(points, proj, ego.residual, stationary_doppler_sigma(points, ego.velocity, cfg.radar),
-                               vb, camera)
+        cands = candidates(points, vb, camera, proj, ego.residual, moving, ego.velocity, cfg.radar, sig_d)
+        scene = CandidateScene(points, proj, ego.residual, sig_d, vb, camera)
         learned_owner, prob = assign(cands, len(points), model, scene=scene)
         if model.box is not None and len(vb):
             real = model.box.probability(box_features(cands, prob, learned_owner, moving, vb, camera, proj)) \
@@ -173,7 +172,6 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
                          claimed_moving=np.bincount(learned_owner[mine & moving], minlength=len(vb)),
                          active=np.ones(len(vb), bool))
     elif cfg.separation.doppler_assign and ego.ok:
-        sig_d = stationary_doppler_sigma(points, ego.velocity, cfg.radar)
         sep = separate(points, moving, vb, camera, cfg.separation, proj, ego.residual, sig_az, sig_d)
     else:
         sep = separate(points, moving, vb, camera, cfg.separation, proj, sigma_az=sig_az)
