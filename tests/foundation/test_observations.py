@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmatch.ego.base import FAR_SIDE_SHIFT_M, MatchContext
+from mmatch.ego.base import FAR_SIDE, FarSideModel, MatchContext, far_side_centres
 from mmatch.ego.observations import ObservationModel, mahalanobis, observe
 from mmatch.ego.refine import refine
 from mmatch.ego.registry import get_aligner, get_matcher
@@ -21,7 +21,8 @@ def _rot(deg: float) -> np.ndarray:
 
 
 def _frame(centres_pts: list, cams: np.ndarray, bg: np.ndarray | None = None) -> SharedFrame:
-    """Vehicles with one radar point each at `centres_pts` (None: no point), camera centres `cams`."""
+    """Vehicles with one radar point each at `centres_pts` (None: no point), camera centres `cams`;
+    boxes twice as wide as tall (a far-side shift of about 1.2 m, FarSideModel)."""
     pts, idx = [], []
     for v, c in enumerate(centres_pts):
         if c is not None:
@@ -31,7 +32,7 @@ def _frame(centres_pts: list, cams: np.ndarray, bg: np.ndarray | None = None) ->
     return SharedFrame("x", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 10.0]),
                        vehicle_points=np.array(pts, np.float32).reshape(-1, 5),
                        vehicle_index=np.array(idx, np.int32),
-                       vehicle_boxes=np.tile(np.array([0, 0, 10, 10, 0.9, 20], np.float32), (V, 1)),
+                       vehicle_boxes=np.tile(np.array([0, 0, 20, 10, 0.9, 20], np.float32), (V, 1)),
                        vehicle_box_index=np.arange(V, dtype=np.int32),
                        vehicle_centers=np.asarray(cams, np.float32).reshape(-1, 2),
                        vehicle_features=np.full((V, 32), 1 / 16, np.float32),
@@ -40,10 +41,11 @@ def _frame(centres_pts: list, cams: np.ndarray, bg: np.ndarray | None = None) ->
 
 def test_covariance_is_long_along_the_line_of_sight():
     m = ObservationModel(camera_bearing=False)
-    obs = observe(_frame([[0.0, 30.0], None], np.array([[0.0, 31.0], [30.0, 0.0]])), m)
+    frame = _frame([[0.0, 30.0], None], np.array([[0.0, 31.0], [30.0, 0.0]]))
+    obs = observe(frame, m)
     w, v = np.linalg.eigh(obs.cov[0])                  # vehicle with points, straight ahead
     assert np.sqrt(w[1]) == pytest.approx(m.along_points_m) and abs(v[1, 1]) == pytest.approx(1.0)
-    assert np.sqrt(w[0]) == pytest.approx(m.across_m + m.across_rad * (30.0 + FAR_SIDE_SHIFT_M), rel=1e-3)
+    assert np.sqrt(w[0]) == pytest.approx(m.across_m + m.across_rad * (30.0 + FAR_SIDE.shifts(frame)[0]), rel=1e-3)
     w, v = np.linalg.eigh(obs.cov[1])                  # camera only, to the right: depth error
     assert np.sqrt(w[1]) == pytest.approx(m.along_depth_m + m.along_depth_rel * 30.0)
     assert abs(v[0, 1]) == pytest.approx(1.0)
@@ -201,3 +203,30 @@ def test_mahalanobis_takes_the_best_of_the_four_estimate_combinations(V):
     np.testing.assert_allclose(d, np.sqrt(ref.min(axis=3)), rtol=1e-4, atol=1e-4)
     best = np.take_along_axis(ref, mode[..., None].astype(int), axis=3)[..., 0]
     np.testing.assert_allclose(best, ref.min(axis=3), rtol=1e-4, atol=1e-3)   # the mode is a best one
+
+
+def _boxed(points: list, box_px: tuple[float, float]) -> SharedFrame:
+    """One vehicle with radar points `points` (x, y) and a camera box of (width, height) px."""
+    f = _frame([None], np.array([[0.0, 30.0]]))
+    f.vehicle_points = np.array([[x, y, 0.0, 0.0, 10.0] for x, y in points], np.float32)
+    f.vehicle_index = np.zeros(len(points), np.int32)
+    f.vehicle_boxes = np.array([[100, 100, 100 + box_px[0], 100 + box_px[1], 0.9, 30]], np.float32)
+    return f
+
+
+def test_the_far_side_shift_grows_with_a_tall_narrow_box_and_shrinks_with_deep_returns():
+    end_on = FAR_SIDE.shifts(_boxed([[0.0, 30.0]], (40, 60)))[0]      # taller than wide: seen end-on
+    side_on = FAR_SIDE.shifts(_boxed([[0.0, 30.0]], (120, 40)))[0]    # wide and low: side-on
+    assert end_on == pytest.approx(FAR_SIDE.base_m + FAR_SIDE.per_aspect * 1.5)
+    assert side_on == pytest.approx(FAR_SIDE.base_m + FAR_SIDE.per_aspect / 3)
+    assert end_on > side_on + 1.0
+    # the returns reach 3 m beyond the nearest already: the centroid needs less of a push
+    deep = FAR_SIDE.shifts(_boxed([[0.0, 30.0], [0.0, 33.0]], (40, 60)))[0]
+    assert deep == pytest.approx(end_on + FAR_SIDE.per_beyond_near * 1.5) and deep < end_on
+    # clipped; a vehicle without points keeps its camera centre
+    assert FAR_SIDE.shifts(_boxed([[0.0, 30.0]], (10, 400)))[0] == FAR_SIDE.max_m
+    flat = FarSideModel(per_aspect=0.0, per_beyond_near=0.0, base_m=1.0)
+    c = far_side_centres(_boxed([[0.0, 30.0]], (40, 60)), flat)
+    np.testing.assert_allclose(c, [[0.0, 31.0]])
+    none = _frame([None], np.array([[3.0, 30.0]]))
+    np.testing.assert_allclose(far_side_centres(none), [[3.0, 30.0]])

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mmatch.ego.base import FAR_SIDE_SHIFT_M
+from mmatch.ego.base import FAR_SIDE
 from mmatch.ego.match.graph import EDGE_DIM, K_MAX, NODE_DIM, build_graph, neighbour_count, view_graph
 from mmatch.train.data import target_matrix
 
@@ -65,7 +65,7 @@ def test_local_distances_are_rigid_invariant():
     ga, _ = view_graph(make_frame(pts, seed=4))
     gb, _ = view_graph(make_frame(moved, seed=4))
     # same vehicles, same noise: distances agree up to the far-side shift of each centroid (along its ray)
-    assert np.abs(ga.edges[..., 1] - gb.edges[..., 1]).max() * 50 < 2 * FAR_SIDE_SHIFT_M + 0.1
+    assert np.abs(ga.edges[..., 1] - gb.edges[..., 1]).max() * 50 < 2 * FAR_SIDE.max_m + 0.1
 
 
 def test_target_matrix_maps_boxes_to_vehicles():
