@@ -275,7 +275,7 @@ def test_fused_pairs_are_those_the_published_transform_implies(hard_dir, name):
     """The pairs a fusion reports are the matcher's rule under the transform it publishes, not
     the matcher's pairs under its own best hypothesis (whose road-speed veto dropped true pairs):
     as many true pairs or more on every scene, more on some."""
-    from mmatch.ego.observations import observations_shared
+    from mmatch.ego.observations import observations_shared, observe
     from mmatch.fusion import FusionConfig, Fuser
     fuser = Fuser(FusionConfig(matcher=name))
     matcher = get_matcher(name)
@@ -287,8 +287,10 @@ def test_fused_pairs_are_those_the_published_transform_implies(hard_dir, name):
         T = res.T_ego_cav if res.T_ego_cav is not None else res.refused_T
         if T is None:
             continue
-        with observations_shared():
-            np.testing.assert_array_equal(res.pairs, matcher.pairs_under(own, other, T[:2, :2], T[:2, 3]))
+        with observations_shared():      # under a fixed pose, with the confidence stage's observations
+            seen = fuser.config.confidence.observation
+            observed = (observe(own, seen), observe(other, seen))
+            np.testing.assert_array_equal(res.pairs, matcher.pairs_under(own, other, T[:2, :2], T[:2, 3], 1.0, observed))
         if rte_m(s.gt_T_ego_cav, T) > 2.0 or rre_deg(s.gt_T_ego_cav, T) > 5.0:
             continue
 

@@ -95,7 +95,7 @@ def test_the_camera_estimate_rescues_a_vehicle_with_wrong_points():
     A = observe(_frame([truth + [0, 12.0]], truth[None]))      # points of the car 12 m behind it
     B = observe(_frame([truth - [0, 1.4]], truth[None] + [0, 1.0]))
     d, mode = mahalanobis(A, B, np.eye(2)[None], np.zeros((1, 2)), with_modes=True)
-    assert d[0, 0, 0] < 2.0 and mode[0, 0, 0] == 2          # own camera estimate, other's points
+    assert d[0, 0, 0] < 2.5 and mode[0, 0, 0] == 2          # own camera estimate, other's points (pair gate 2.5)
     off = observe(_frame([truth + [6.0, 12.0]], truth[None] + [10.0, 0.0]))   # both off across the ray
     assert mahalanobis(off, B, np.eye(2)[None], np.zeros((1, 2)))[0, 0, 0] > 3.0
 
