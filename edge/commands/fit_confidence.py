@@ -26,12 +26,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-without-heading", dest="without_heading", action="store_false",
                    help="skip the second model, for frame pairs without a heading prior (a radar standing "
                         "still or turning), fit on the same folders run without it")
+    p.add_argument("--no-trees", dest="trees", action="store_false",
+                   help="no boosted trees beside the regression (the confidence is the regression's probability)")
+    p.add_argument("--trees-only", action="store_true",
+                   help="keep the model file's regressions, thresholds and inflations; refit only the boosted "
+                        "trees (on the default matcher's candidates)")
 
 
 def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
     from mmatch.ego.confidence import MODEL_PATH, load_model
     from mmatch.ego.confidence_fit import fit_model, neutral_model
+    from mmatch.ego.registry import DEFAULT_MATCHER
     from mmatch.errors import ConfigError, ParseError
     from mmatch.evaluate import EvalConfig, evaluate_dir
 
@@ -44,6 +50,18 @@ def run(args: argparse.Namespace) -> int:
     for folder in args.folders:
         if not Path(folder).is_dir() or not any(Path(folder).glob("*.npz")):
             raise ParseError(f"{folder}: not a folder of *.npz scene files")
+    if args.trees_only and not args.trees:
+        raise ParseError("--trees-only and --no-trees contradict each other")
+    out = Path(args.out) if args.out else MODEL_PATH
+    if args.trees_only:
+        kept = load_model(str(out)) if args.out else load_model()
+        if kept is None:
+            raise ParseError(f"--trees-only: no model at {out} to keep")
+        model = _with_trees(kept, None, args)
+        out.write_text(model.to_json() + "\n")
+        _report(model)
+        print(f"wrote {out}")
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         try:
             current = load_model()              # the model the evaluation runs under (its inflation)
@@ -73,10 +91,42 @@ def run(args: argparse.Namespace) -> int:
             sub = fit_model(results[False], args.max_gross, args.min_coverage, meta=dict(meta, heading_prior=False),
                             inflation_used=used)
             model = replace(model, without_heading=sub)
+        if args.trees:
+            reuse = results[True] if matchers == [DEFAULT_MATCHER] else None
+            model = _with_trees(model, reuse, args)
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
-    out = Path(args.out) if args.out else MODEL_PATH
     out.write_text(model.to_json() + "\n")
+    _report(model)
+    print(f"wrote {out}")
+    return 0
+
+
+def _with_trees(model, results: list[dict] | None, args: argparse.Namespace):
+    """`model` with its boosted trees fit on the folders' candidates of the default matcher
+    (heading prior known), evaluated under `model` itself unless `results` are given."""
+    from mmatch.edge.commands.progress import Progress
+    from mmatch.ego.confidence_fit import fit_tree_stage
+    from mmatch.ego.registry import DEFAULT_MATCHER
+    from mmatch.errors import ParseError
+    from mmatch.evaluate import EvalConfig, evaluate_dir
+
+    if results is None:
+        results = []
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "model.json"
+            path.write_text(model.to_json())
+            for folder in args.folders:
+                cfg = EvalConfig(matcher=DEFAULT_MATCHER, confidence_threshold=0.0, confidence_model=str(path))
+                _, res = evaluate_dir(folder, cfg, args.jobs, Progress(f"fit trees {DEFAULT_MATCHER}"))
+                results.extend(res)
+    try:
+        return fit_tree_stage(results, model, {"folders": args.folders, "matcher": DEFAULT_MATCHER})
+    except ValueError as exc:
+        raise ParseError(str(exc)) from exc
+
+
+def _report(model) -> None:
     for what, mdl in (("", model), (" without a heading prior", model.without_heading)):
         if mdl is None:
             continue
@@ -86,5 +136,7 @@ def run(args: argparse.Namespace) -> int:
               f"gross {m['chosen_gross']:.3f}; threshold {mdl.threshold:.3f}, covariance inflation {mdl.inflation:.2f}")
         for name, c in sorted(zip(mdl.features, mdl.coef), key=lambda x: -abs(x[1])):
             print(f"  {name:<22} {c:+.3f}")
-    print(f"wrote {out}")
-    return 0
+    if model.trees is not None:
+        t = model.meta["trees"]
+        print(f"boosted trees: {len(model.trees.feature)} of depth {model.trees.depth} on {t['candidates']} "
+              f"candidates of {t['matcher']} (success {t['candidate_success']:.3f})")

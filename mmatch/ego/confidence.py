@@ -49,6 +49,7 @@ from scipy.spatial import cKDTree
 
 from mmatch.ego.base import (Hypotheses, MatchResult, heading_yaws, point_counts, radial_ground_speeds,
                              velocity_heading_yaws)
+from mmatch.ego.confidence_trees import TreeEnsemble
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.rigid import inv2, rot2
 from mmatch.errors import ConfigError
@@ -146,18 +147,23 @@ class ConfidenceConfig:
 class Assessment:
     """confidence: P(within 2 m / 5 deg) in 0-1; covariance (3, 3) of (x, y, yaw) in m, m, rad;
     ambiguity: the best distinct alternative's score relative to the estimate's (0 none,
-    1 as good, > 1 better); reason: what weighs most against it; features: the evidence."""
+    1 as good, > 1 better); reason: what weighs most against it; features: the evidence;
+    choice: the logistic regression's probability alone, which chooses among one frame pair's
+    candidates (NaN: the confidence chooses)."""
 
     confidence: float
     covariance: np.ndarray
     ambiguity: float
     reason: str
     features: dict[str, float]
+    choice: float = float("nan")
 
 
 @dataclass(frozen=True)
 class ProbabilityModel:
-    """Logistic regression over standardised evidence (fit by `fit_model`)."""
+    """Logistic regression over standardised evidence (fit by `fit_model`), and optionally
+    boosted trees over the same (ego/confidence_trees.py): the confidence is then the mean of
+    the two probabilities, while the regression alone chooses among a frame pair's candidates."""
 
     features: tuple[str, ...]
     mean: np.ndarray
@@ -168,6 +174,7 @@ class ProbabilityModel:
     threshold: float = 0.5
     meta: dict = field(default_factory=dict)
     without_heading: "ProbabilityModel | None" = None   # for frame pairs without a heading prior
+    trees: TreeEnsemble | None = None
 
     def for_heading(self, known: bool) -> "ProbabilityModel":
         """The model for a frame pair with (known) or without the velocities' heading prior
@@ -186,12 +193,22 @@ class ProbabilityModel:
         s = ((z - self.mean) / self.scale) @ self.coef + self.intercept
         return 1.0 / (1.0 + np.exp(-np.clip(s, -40, 40)))
 
+    def confidence(self, x: np.ndarray) -> np.ndarray:
+        """(n,) the confidence of n candidates' evidence x (n, F): the regression's probability,
+        averaged with the trees' when the model has them."""
+        p = self.probability(x)
+        if self.trees is None:
+            return p
+        return 0.5 * (p + self.trees.probability((np.atleast_2d(np.asarray(x, float)) - self.mean) / self.scale))
+
     def to_dict(self) -> dict:
         d = {"features": list(self.features), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
              "coef": self.coef.tolist(), "intercept": float(self.intercept), "inflation": float(self.inflation),
              "threshold": float(self.threshold), "meta": self.meta}
         if self.without_heading is not None:
             d["without_heading"] = self.without_heading.to_dict()
+        if self.trees is not None:
+            d["trees"] = self.trees.to_dict()
         return d
 
     def to_json(self) -> str:
@@ -212,8 +229,10 @@ class ProbabilityModel:
             sub = cls.from_dict(sub, f"{where}: without_heading") if sub is not None else None
             feats = tuple(d["features"])
             arrays = [np.asarray(d[k], float) for k in ("mean", "scale", "coef")]
+            trees = d.get("trees")
+            trees = TreeEnsemble.from_dict(trees, len(FEATURES), where) if trees is not None else None
             model = cls(feats, *arrays, float(d["intercept"]), float(d.get("inflation", 1.0)),
-                        float(d.get("threshold", 0.5)), dict(d.get("meta", {})), sub)
+                        float(d.get("threshold", 0.5)), dict(d.get("meta", {})), sub, trees)
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise ConfigError(f"{where}: not a confidence model ({exc})") from exc
         if feats != FEATURES or any(a.shape != (len(FEATURES),) for a in arrays) \
@@ -746,10 +765,12 @@ def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarra
     inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
     X, cov, amb = features(ctx, R, t, pairs, match, inflation)
     out = []
-    p = model.probability(X) if model is not None else np.full(len(X), np.nan)
+    p = model.confidence(X) if model is not None else np.full(len(X), np.nan)
+    choice = model.probability(X) if model is not None else p
     for h in range(len(X)):
         reason = REASONS[FEATURES[int(np.argmin(model.logit_terms(X[h])))]] if model is not None else ""
-        out.append(Assessment(float(p[h]), cov[h], float(amb[h]), reason, dict(zip(FEATURES, map(float, X[h])))))
+        out.append(Assessment(float(p[h]), cov[h], float(amb[h]), reason, dict(zip(FEATURES, map(float, X[h]))),
+                              float(choice[h])))
     return out
 
 

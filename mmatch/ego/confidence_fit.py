@@ -8,14 +8,20 @@ the truth for 95 % of the successful estimates, and the threshold: the lowest pr
 at which the gross rate among the emitted stays at or below `max_gross` (keeping at least
 `min_coverage` of the scenes when it can).
 
+Beside the regression, `fit_tree_stage` fits boosted trees (ego/confidence_trees.py) on the
+default matcher's candidates; the confidence is the mean of the two.
+
 Choose the seeds you fit on apart from those you report on.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from mmatch.ego.confidence import CHI2_3_95, FEATURES, ProbabilityModel
+from mmatch.ego.confidence_trees import TREE_SETTINGS, fit_trees
 
 
 def training_rows(results: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -107,3 +113,14 @@ def fit_model(results: list[dict], max_gross: float = 0.015, min_coverage: float
                 candidate_success=float(y.mean()), max_gross=max_gross, min_coverage=min_coverage)
     return ProbabilityModel(FEATURES, mean, scale, model.coef, model.intercept,
                             fit_inflation(chosen) * inflation_used, thr, info)
+
+
+def fit_tree_stage(results: list[dict], model: ProbabilityModel, meta: dict | None = None) -> ProbabilityModel:
+    """`model` with boosted trees (ego/confidence_trees.py) fit beside its regression on every
+    candidate of the evaluated scenes, over the regression's standardised evidence."""
+    X, y, _, _ = training_rows(results)
+    if len(X) < 20 or y.all() or not y.any():
+        raise ValueError(f"need at least 20 candidates with both outcomes, got {len(X)}")
+    trees = fit_trees((X - model.mean) / model.scale, y)
+    info = dict(meta or {}, candidates=len(X), candidate_success=float(y.mean()), settings=TREE_SETTINGS)
+    return replace(model, trees=trees, meta=dict(model.meta, trees=info))

@@ -53,6 +53,43 @@ def test_fits_a_model_of_todays_evidence(folder, tmp_path, capsys):
     assert model.for_heading(False) is sub and model.for_heading(True) is model
     again = ProbabilityModel.from_json(model.to_json())
     assert again.without_heading is not None and np.allclose(again.without_heading.coef, sub.coef)
+    # boosted trees beside the first regression, fit on the default matcher's candidates
+    assert model.trees is not None and sub.trees is None and model.meta["trees"]["matcher"] == "consensus-rmnet"
+    x = np.array([model.mean, model.mean + model.scale])
+    np.testing.assert_allclose(again.confidence(x), model.confidence(x))
+    np.testing.assert_allclose(model.confidence(x), 0.5 * (model.probability(x) + model.trees.probability(
+        (x - model.mean) / model.scale)))
+
+
+def test_trees_only_keeps_the_regressions_and_no_trees_leaves_them_out(folder, tmp_path):
+    out = tmp_path / "model.json"
+    kept = ProbabilityModel.from_json(confidence.MODEL_PATH.read_text())
+    out.write_text(confidence.MODEL_PATH.read_text())
+    assert main(["fit-confidence", str(folder), "--trees-only", "--out", str(out)]) == 0
+    model = ProbabilityModel.from_json(out.read_text())
+    np.testing.assert_array_equal(model.coef, kept.coef)
+    assert model.threshold == kept.threshold and model.inflation == kept.inflation
+    np.testing.assert_array_equal(model.without_heading.coef, kept.without_heading.coef)
+    assert model.trees is not None and model.meta["trees"]["candidates"] > 16
+    assert model.meta["trees"]["folders"] == [str(folder)]
+    plain = tmp_path / "plain.json"
+    assert main(["fit-confidence", str(folder), "--matchers", "consensus", "--no-without-heading", "--no-trees",
+                 "--out", str(plain)]) == 0
+    assert ProbabilityModel.from_json(plain.read_text()).trees is None
+    assert main(["fit-confidence", str(folder), "--trees-only", "--out", str(tmp_path / "none.json")]) == 2
+
+
+def test_a_broken_tree_block_is_refused_naming_the_file(tmp_path):
+    d = json.loads(confidence.MODEL_PATH.read_text())
+    assert "trees" in d                                       # the packaged model has them
+    for change in ({"left": [[5] * len(d["trees"]["left"][0])] * len(d["trees"]["left"])},   # children out of the tree
+                   {"feature": [[99] * len(d["trees"]["feature"][0])] * len(d["trees"]["feature"])},
+                   {"value": "x"}):
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps(dict(d, trees=dict(d["trees"], **change))))
+        confidence.load_model.cache_clear()
+        with pytest.raises(ConfigError, match=f"{bad}: trees"):
+            confidence.load_model(str(bad))
 
 
 def test_the_second_model_can_be_left_out(folder, tmp_path):

@@ -251,3 +251,27 @@ def test_rmnet_evidence_is_higher_at_the_truth_than_at_a_slide(hard_dir):
         better += X[0, k] > X[1:, k].max()
     assert better >= 0.75 * len(files), better
     assert at_truth > 1.5 * slid, (at_truth, slid)
+
+
+def test_the_regression_chooses_among_candidates_and_the_average_rates_the_choice(hard_dir):
+    """The packaged model's trees only rate: the arbiter picks the candidate the logistic
+    regression prefers, and the published confidence is that candidate's averaged probability."""
+    from mmatch.evaluate import prepare_scene
+    from mmatch.fusion import Fuser, FusionConfig
+    from mmatch.scene_io import load_scene
+
+    fuser = Fuser(FusionConfig())
+    differ = 0
+    for f in sorted(hard_dir.glob("*.npz"))[:8]:
+        own, received, _, _ = prepare_scene(load_scene(f))
+        res = fuser.fuse(own, received)
+        if len(res.candidates) < 2:
+            continue
+        choice = np.array([a.choice for _, a in res.candidates])
+        conf = np.array([a.confidence for _, a in res.candidates])
+        k = int(np.argmax(choice))
+        T = res.T_ego_cav if res.T_ego_cav is not None else res.refused_T
+        np.testing.assert_allclose(T, res.candidates[k][0])
+        assert res.confidence == pytest.approx(conf[k]) and np.all((conf >= 0) & (conf <= 1))
+        differ += int(not np.allclose(choice, conf))
+    assert differ >= 1
