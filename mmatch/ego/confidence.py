@@ -29,9 +29,10 @@ The covariance of (x, y, yaw) comes from the final fit's information matrix (mat
 pairs with their line-of-sight covariances, point-to-line background terms counted as
 independent per 2 m cell, the heading prior), inflated by the residuals and by a factor
 calibrated on our own wide physics so that its 95 % ellipse holds the truth about 95 %
-of the time. The probability is a logistic model over the evidence, fit on simulated
-scenes of seeds not used for reporting (`mmatch fit-confidence`); its coefficients ship
-as JSON beside this file.
+of the time. The probability is the mean of a logistic model and boosted trees over the
+evidence (the logistic model alone chooses among a frame pair's candidates;
+confidence_trees.py), fit on simulated scenes of seeds not used for reporting (`mmatch
+fit-confidence`); both ship as JSON beside this file.
 
 Frames: the Ego radar frame, metres and radians; (x, y, yaw) are T_ego_cav's translation
 and rotation about z.
