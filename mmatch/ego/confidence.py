@@ -50,7 +50,7 @@ from scipy.spatial import cKDTree
 
 from mmatch.ego.base import (Hypotheses, MatchResult, heading_yaws, point_counts, radial_ground_speeds,
                              velocity_heading_yaws)
-from mmatch.ego.confidence_trees import TreeEnsemble
+from mmatch.ego.confidence_trees import TreeEnsemble, choice_features
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.rigid import inv2, rot2
 from mmatch.errors import ConfigError
@@ -149,8 +149,8 @@ class Assessment:
     """confidence: P(within 2 m / 5 deg) in 0-1; covariance (3, 3) of (x, y, yaw) in m, m, rad;
     ambiguity: the best distinct alternative's score relative to the estimate's (0 none,
     1 as good, > 1 better); reason: what weighs most against it; features: the evidence;
-    choice: the logistic regression's probability alone, which chooses among one frame pair's
-    candidates (NaN: the confidence chooses)."""
+    choice: the score that chooses among one frame pair's candidates (ProbabilityModel.choice;
+    NaN: the confidence chooses)."""
 
     confidence: float
     covariance: np.ndarray
@@ -164,7 +164,9 @@ class Assessment:
 class ProbabilityModel:
     """Logistic regression over standardised evidence (fit by `fit_model`), and optionally
     boosted trees over the same (ego/confidence_trees.py): the confidence is then the mean of
-    the two probabilities, while the regression alone chooses among a frame pair's candidates."""
+    the two probabilities. The chooser (trees over the candidates' evidence relative to each
+    other, confidence_trees.py) picks among a frame pair's candidates; without it the
+    regression does."""
 
     features: tuple[str, ...]
     mean: np.ndarray
@@ -176,6 +178,7 @@ class ProbabilityModel:
     meta: dict = field(default_factory=dict)
     without_heading: "ProbabilityModel | None" = None   # for frame pairs without a heading prior
     trees: TreeEnsemble | None = None
+    chooser: TreeEnsemble | None = None
 
     def for_heading(self, known: bool) -> "ProbabilityModel":
         """The model for a frame pair with (known) or without the velocities' heading prior
@@ -202,6 +205,15 @@ class ProbabilityModel:
             return p
         return 0.5 * (p + self.trees.probability((np.atleast_2d(np.asarray(x, float)) - self.mean) / self.scale))
 
+    def choice(self, x: np.ndarray) -> np.ndarray:
+        """(n,) the score that picks among one frame pair's n candidates (evidence x (n, F)): the
+        chooser's probability, else the regression's."""
+        p = self.probability(x)
+        if self.chooser is None or len(p) == 0:
+            return p
+        return self.chooser.probability(choice_features((np.atleast_2d(np.asarray(x, float)) - self.mean)
+                                                        / self.scale, p))
+
     def to_dict(self) -> dict:
         d = {"features": list(self.features), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
              "coef": self.coef.tolist(), "intercept": float(self.intercept), "inflation": float(self.inflation),
@@ -210,6 +222,8 @@ class ProbabilityModel:
             d["without_heading"] = self.without_heading.to_dict()
         if self.trees is not None:
             d["trees"] = self.trees.to_dict()
+        if self.chooser is not None:
+            d["chooser"] = self.chooser.to_dict()
         return d
 
     def to_json(self) -> str:
@@ -232,8 +246,11 @@ class ProbabilityModel:
             arrays = [np.asarray(d[k], float) for k in ("mean", "scale", "coef")]
             trees = d.get("trees")
             trees = TreeEnsemble.from_dict(trees, len(FEATURES), where) if trees is not None else None
+            chooser = d.get("chooser")
+            chooser = TreeEnsemble.from_dict(chooser, 2 * len(FEATURES) + 4, f"{where}: chooser") \
+                if chooser is not None else None
             model = cls(feats, *arrays, float(d["intercept"]), float(d.get("inflation", 1.0)),
-                        float(d.get("threshold", 0.5)), dict(d.get("meta", {})), sub, trees)
+                        float(d.get("threshold", 0.5)), dict(d.get("meta", {})), sub, trees, chooser)
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise ConfigError(f"{where}: not a confidence model ({exc})") from exc
         if feats != FEATURES or any(a.shape != (len(FEATURES),) for a in arrays) \
@@ -767,7 +784,7 @@ def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarra
     X, cov, amb = features(ctx, R, t, pairs, match, inflation)
     out = []
     p = model.confidence(X) if model is not None else np.full(len(X), np.nan)
-    choice = model.probability(X) if model is not None else p
+    choice = model.choice(X) if model is not None else p
     for h in range(len(X)):
         reason = REASONS[FEATURES[int(np.argmin(model.logit_terms(X[h])))]] if model is not None else ""
         out.append(Assessment(float(p[h]), cov[h], float(amb[h]), reason, dict(zip(FEATURES, map(float, X[h]))),

@@ -9,7 +9,8 @@ at which the gross rate among the emitted stays at or below `max_gross` (keeping
 `min_coverage` of the scenes when it can).
 
 Beside the regression, `fit_tree_stage` fits boosted trees (ego/confidence_trees.py) on the
-default matcher's candidates; the confidence is the mean of the two.
+default matcher's candidates, whose mean with the regression is the confidence, and the chooser
+that picks among a frame pair's candidates.
 
 Choose the seeds you fit on apart from those you report on.
 """
@@ -21,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from mmatch.ego.confidence import CHI2_3_95, FEATURES, ProbabilityModel
-from mmatch.ego.confidence_trees import TREE_SETTINGS, fit_trees
+from mmatch.ego.confidence_trees import CHOOSER_SETTINGS, TREE_SETTINGS, choice_features, fit_trees
 
 
 def training_rows(results: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -117,10 +118,19 @@ def fit_model(results: list[dict], max_gross: float = 0.015, min_coverage: float
 
 def fit_tree_stage(results: list[dict], model: ProbabilityModel, meta: dict | None = None) -> ProbabilityModel:
     """`model` with boosted trees (ego/confidence_trees.py) fit beside its regression on every
-    candidate of the evaluated scenes, over the regression's standardised evidence."""
-    X, y, _, _ = training_rows(results)
+    candidate of the evaluated scenes, over the regression's standardised evidence, and the
+    chooser over each scene's candidates relative to each other."""
+    X, y, _, sid = training_rows(results)
     if len(X) < 20 or y.all() or not y.any():
         raise ValueError(f"need at least 20 candidates with both outcomes, got {len(X)}")
-    trees = fit_trees((X - model.mean) / model.scale, y)
-    info = dict(meta or {}, candidates=len(X), candidate_success=float(y.mean()), settings=TREE_SETTINGS)
-    return replace(model, trees=trees, meta=dict(model.meta, trees=info))
+    Z = (X - model.mean) / model.scale
+    trees = fit_trees(Z, y)
+    p = model.probability(X)
+    C = np.zeros((len(X), 2 * Z.shape[1] + 4))
+    for k in np.unique(sid):
+        idx = np.flatnonzero(sid == k)
+        C[idx] = choice_features(Z[idx], p[idx])
+    chooser = fit_trees(C, y, settings=CHOOSER_SETTINGS)
+    info = dict(meta or {}, candidates=len(X), candidate_success=float(y.mean()), settings=TREE_SETTINGS,
+                chooser_settings=CHOOSER_SETTINGS)
+    return replace(model, trees=trees, chooser=chooser, meta=dict(model.meta, trees=info))

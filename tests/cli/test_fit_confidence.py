@@ -70,12 +70,13 @@ def test_trees_only_keeps_the_regressions_and_no_trees_leaves_them_out(folder, t
     np.testing.assert_array_equal(model.coef, kept.coef)
     assert model.threshold == kept.threshold and model.inflation == kept.inflation
     np.testing.assert_array_equal(model.without_heading.coef, kept.without_heading.coef)
-    assert model.trees is not None and model.meta["trees"]["candidates"] > 16
+    assert model.trees is not None and model.chooser is not None and model.meta["trees"]["candidates"] > 16
     assert model.meta["trees"]["folders"] == [str(folder)]
     plain = tmp_path / "plain.json"
     assert main(["fit-confidence", str(folder), "--matchers", "consensus", "--no-without-heading", "--no-trees",
                  "--out", str(plain)]) == 0
-    assert ProbabilityModel.from_json(plain.read_text()).trees is None
+    plain_model = ProbabilityModel.from_json(plain.read_text())
+    assert plain_model.trees is None and plain_model.chooser is None
     assert main(["fit-confidence", str(folder), "--trees-only", "--out", str(tmp_path / "none.json")]) == 2
 
 
@@ -90,6 +91,12 @@ def test_a_broken_tree_block_is_refused_naming_the_file(tmp_path):
         confidence.load_model.cache_clear()
         with pytest.raises(ConfigError, match=f"{bad}: trees"):
             confidence.load_model(str(bad))
+    short = dict(d, chooser=dict(d["chooser"], feature=[[len(FEATURES) * 2 + 4] * len(d["chooser"]["feature"][0])]
+                                 * len(d["chooser"]["feature"])))     # reads past its 2 F + 4 features
+    bad.write_text(json.dumps(short))
+    confidence.load_model.cache_clear()
+    with pytest.raises(ConfigError, match=f"{bad}: chooser: trees"):
+        confidence.load_model(str(bad))
 
 
 def test_the_second_model_can_be_left_out(folder, tmp_path):

@@ -253,9 +253,9 @@ def test_rmnet_evidence_is_higher_at_the_truth_than_at_a_slide(hard_dir):
     assert at_truth > 1.5 * slid, (at_truth, slid)
 
 
-def test_the_regression_chooses_among_candidates_and_the_average_rates_the_choice(hard_dir):
-    """The packaged model's trees only rate: the arbiter picks the candidate the logistic
-    regression prefers, and the published confidence is that candidate's averaged probability."""
+def test_the_chooser_picks_among_candidates_and_the_average_rates_the_choice(hard_dir):
+    """The arbiter picks the candidate the packaged model's chooser prefers, and the published
+    confidence is that candidate's mean of the regression's and the trees' probabilities."""
     from mmatch.evaluate import prepare_scene
     from mmatch.fusion import Fuser, FusionConfig
     from mmatch.scene_io import load_scene

@@ -6,7 +6,7 @@ import numpy as np
 from sklearn.ensemble import HistGradientBoostingClassifier
 
 from mmatch.ego.confidence import load_model
-from mmatch.ego.confidence_trees import TREE_SETTINGS, TreeEnsemble, fit_trees
+from mmatch.ego.confidence_trees import TREE_SETTINGS, TreeEnsemble, choice_features, fit_trees
 
 
 def test_numpy_trees_agree_with_scikit_learn_and_survive_the_file():
@@ -32,3 +32,20 @@ def test_the_packaged_model_averages_its_regression_and_trees():
     p, c = model.probability(x), model.confidence(x)
     assert np.all((c >= 0) & (c <= 1)) and not np.allclose(p, c)
     np.testing.assert_allclose(c, 0.5 * (p + model.trees.probability((x - model.mean) / model.scale)))
+
+
+def test_the_chooser_reads_each_candidate_against_its_competitors():
+    Z = np.array([[0.0, 1.0], [2.0, -1.0], [1.0, 0.0]])
+    C = choice_features(Z, np.array([0.2, 0.7, 0.5]))
+    np.testing.assert_allclose(C[:, :2], Z)
+    np.testing.assert_allclose(C[:, 2:4], Z - [2.0, 1.0])              # relative to the best of each
+    np.testing.assert_allclose(C[:, 4], [2, 0, 1])                      # rank of the regression's probability
+    np.testing.assert_allclose(C[:, 5], [-0.5, 0.0, -0.2])
+    assert (C[:, 6] == 3).all() and np.allclose(C[:, 7], [0.2, 0.7, 0.5])
+    assert choice_features(np.zeros((0, 2)), np.zeros(0)).shape == (0, 8)
+    model = load_model()
+    assert model.chooser is not None and model.without_heading.chooser is None
+    x = model.mean + model.scale * np.random.default_rng(1).normal(size=(5, len(model.mean)))
+    c = model.choice(x)
+    assert c.shape == (5,) and np.all((c >= 0) & (c <= 1)) and not np.allclose(c, model.probability(x))
+    assert model.without_heading.choice(x).tolist() == model.without_heading.probability(x).tolist()
