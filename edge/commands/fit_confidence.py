@@ -30,7 +30,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="no boosted trees beside the regression (the confidence is the regression's probability)")
     p.add_argument("--trees-only", action="store_true",
                    help="keep the model file's regressions, thresholds and inflations; refit only the boosted "
-                        "trees (on the default matcher's candidates)")
+                        "trees and choosers (on the default matcher's candidates)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -102,28 +102,44 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _with_trees(model, results: list[dict] | None, args: argparse.Namespace):
-    """`model` with its boosted trees fit on the folders' candidates of the default matcher
-    (heading prior known), evaluated under `model` itself unless `results` are given."""
-    from mmatch.edge.commands.progress import Progress
+def _with_trees(model, reuse: list[dict] | None, args: argparse.Namespace):
+    """`model` with boosted trees fit on the folders' candidates of the default matcher, run
+    under `model` itself: beside its first regression (heading prior known; `reuse`: those
+    runs' results when already at hand) and, unless --no-without-heading, beside its second
+    (the same folders run without the heading prior)."""
     from mmatch.ego.confidence_fit import fit_tree_stage
     from mmatch.ego.registry import DEFAULT_MATCHER
     from mmatch.errors import ParseError
-    from mmatch.evaluate import EvalConfig, evaluate_dir
 
-    if results is None:
-        results = []
-        with tempfile.TemporaryDirectory() as tmp:
-            path = Path(tmp) / "model.json"
-            path.write_text(model.to_json())
-            for folder in args.folders:
-                cfg = EvalConfig(matcher=DEFAULT_MATCHER, confidence_threshold=0.0, confidence_model=str(path))
-                _, res = evaluate_dir(folder, cfg, args.jobs, Progress(f"fit trees {DEFAULT_MATCHER}"))
-                results.extend(res)
+    meta = {"folders": args.folders, "matcher": DEFAULT_MATCHER}
     try:
-        return fit_tree_stage(results, model, {"folders": args.folders, "matcher": DEFAULT_MATCHER})
+        out = fit_tree_stage(reuse if reuse is not None else _runs(model, args, True), model, meta)
+        if args.without_heading and model.without_heading is not None:
+            sub = fit_tree_stage(_runs(model, args, False), model.without_heading, dict(meta, heading_prior=False))
+            out = replace(out, without_heading=sub)
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
+    return out
+
+
+def _runs(model, args: argparse.Namespace, heading: bool) -> list[dict]:
+    """The default matcher's per-scene results on the folders under `model`, every candidate
+    emitted, with or without the heading prior."""
+    from mmatch.edge.commands.progress import Progress
+    from mmatch.ego.registry import DEFAULT_MATCHER
+    from mmatch.evaluate import EvalConfig, evaluate_dir
+
+    results: list[dict] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "model.json"
+        path.write_text(model.to_json())
+        for folder in args.folders:
+            cfg = EvalConfig(matcher=DEFAULT_MATCHER, confidence_threshold=0.0, confidence_model=str(path),
+                             heading_prior=heading)
+            _, res = evaluate_dir(folder, cfg, args.jobs, Progress(
+                f"fit trees {DEFAULT_MATCHER}" + ("" if heading else " without heading")))
+            results.extend(res)
+    return results
 
 
 def _report(model) -> None:
@@ -136,7 +152,9 @@ def _report(model) -> None:
               f"gross {m['chosen_gross']:.3f}; threshold {mdl.threshold:.3f}, covariance inflation {mdl.inflation:.2f}")
         for name, c in sorted(zip(mdl.features, mdl.coef), key=lambda x: -abs(x[1])):
             print(f"  {name:<22} {c:+.3f}")
-    if model.trees is not None:
-        t = model.meta["trees"]
-        print(f"boosted trees: {len(model.trees.feature)} of depth {model.trees.depth} on {t['candidates']} "
-              f"candidates of {t['matcher']} (success {t['candidate_success']:.3f})")
+    for what, mdl in (("", model), (" without a heading prior", model.without_heading)):
+        if mdl is not None and mdl.trees is not None:
+            t = mdl.meta["trees"]
+            print(f"boosted trees{what}: {len(mdl.trees.feature)} of depth {mdl.trees.depth} and a chooser of "
+                  f"{len(mdl.chooser.feature)} on {t['candidates']} candidates of {t['matcher']} "
+                  f"(success {t['candidate_success']:.3f})")

@@ -54,7 +54,8 @@ def test_fits_a_model_of_todays_evidence(folder, tmp_path, capsys):
     again = ProbabilityModel.from_json(model.to_json())
     assert again.without_heading is not None and np.allclose(again.without_heading.coef, sub.coef)
     # boosted trees beside the first regression, fit on the default matcher's candidates
-    assert model.trees is not None and sub.trees is None and model.meta["trees"]["matcher"] == "consensus-rmnet"
+    assert model.trees is not None and model.meta["trees"]["matcher"] == "consensus-rmnet"
+    assert sub.trees is not None and sub.chooser is not None and sub.meta["trees"]["heading_prior"] is False
     x = np.array([model.mean, model.mean + model.scale])
     np.testing.assert_allclose(again.confidence(x), model.confidence(x))
     np.testing.assert_allclose(model.confidence(x), 0.5 * (model.probability(x) + model.trees.probability(
@@ -72,6 +73,14 @@ def test_trees_only_keeps_the_regressions_and_no_trees_leaves_them_out(folder, t
     np.testing.assert_array_equal(model.without_heading.coef, kept.without_heading.coef)
     assert model.trees is not None and model.chooser is not None and model.meta["trees"]["candidates"] > 16
     assert model.meta["trees"]["folders"] == [str(folder)]
+    assert model.without_heading.trees is not None                 # both models get theirs
+    assert model.without_heading.meta["trees"]["heading_prior"] is False
+    first_only = tmp_path / "first.json"
+    first_only.write_text(confidence.MODEL_PATH.read_text())
+    assert main(["fit-confidence", str(folder), "--trees-only", "--no-without-heading", "--out", str(first_only)]) == 0
+    m1 = ProbabilityModel.from_json(first_only.read_text())
+    assert m1.without_heading.trees is not None               # the packaged second model's, kept
+    assert m1.without_heading.meta["trees"] == kept.without_heading.meta["trees"]
     plain = tmp_path / "plain.json"
     assert main(["fit-confidence", str(folder), "--matchers", "consensus", "--no-without-heading", "--no-trees",
                  "--out", str(plain)]) == 0
