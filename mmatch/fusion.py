@@ -306,7 +306,7 @@ class Fuser:
             t = np.concatenate([t, np.stack([x for _, x in extra])])
         rated = assess_many(ctx, R, t, pairs, match)
         Ts = [se2_to_matrix(R[h], t[h], dz) for h in range(len(R))]
-        p = np.array([x.confidence if np.isnan(x.choice) else x.choice for x in rated])   # the regression chooses
+        p = np.array([x.confidence if np.isnan(x.choice) else x.choice for x in rated])   # the chooser's score
         k = int(np.nanargmax(p)) if np.isfinite(p).any() else 0
         chosen = pairs[k]
         if self._pairs_from_transform:

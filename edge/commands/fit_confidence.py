@@ -152,8 +152,7 @@ def _report(model) -> None:
               f"gross {m['chosen_gross']:.3f}; threshold {mdl.threshold:.3f}, covariance inflation {mdl.inflation:.2f}")
         for name, c in sorted(zip(mdl.features, mdl.coef), key=lambda x: -abs(x[1])):
             print(f"  {name:<22} {c:+.3f}")
-    for what, mdl in (("", model), (" without a heading prior", model.without_heading)):
-        if mdl is not None and mdl.trees is not None:
+        if mdl.trees is not None and mdl.chooser is not None:
             t = mdl.meta["trees"]
             print(f"boosted trees{what}: {len(mdl.trees.feature)} of depth {mdl.trees.depth} and a chooser of "
                   f"{len(mdl.chooser.feature)} on {t['candidates']} candidates of {t['matcher']} "

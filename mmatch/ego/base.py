@@ -121,18 +121,19 @@ class FarSideModel:
     min_m: float = -0.5
     max_m: float = 3.5
 
-    def shifts(self, frame: SharedFrame) -> np.ndarray:
-        """(V,) shift of each vehicle with points, m (0 for the others)."""
+    def shifts(self, frame: SharedFrame, centroids: np.ndarray | None = None) -> np.ndarray:
+        """(V,) shift of each vehicle with points, m (0 for the others); centroids: the frame's
+        `vehicle_centroids` when the caller has them."""
         V = frame.num_vehicles
         out = np.zeros(V)
         if V == 0 or len(frame.vehicle_points) == 0:
             return out
-        idx = frame.vehicle_index
         r = np.hypot(frame.vehicle_points[:, 0], frame.vehicle_points[:, 1]).astype(np.float64)
         nearest = np.full(V, np.inf)
-        np.minimum.at(nearest, idx, r)
-        has = point_counts(frame) > 0
-        beyond = np.linalg.norm(vehicle_centroids(frame), axis=1) - nearest
+        np.minimum.at(nearest, frame.vehicle_index, r)
+        has = np.isfinite(nearest)
+        c = vehicle_centroids(frame) if centroids is None else centroids
+        beyond = np.linalg.norm(c, axis=1) - nearest
         b = np.asarray(frame.vehicle_boxes, np.float64).reshape(-1, 6)
         aspect = (b[:, 3] - b[:, 1]) / np.maximum(b[:, 2] - b[:, 0], 1.0)
         shift = self.base_m + self.per_beyond_near * np.where(has, beyond, 0.0) + self.per_aspect * aspect
@@ -149,7 +150,7 @@ def far_side_centres(frame: SharedFrame, model: FarSideModel = FAR_SIDE) -> np.n
     centre and stay."""
     c = vehicle_centroids(frame)
     norm = np.maximum(np.linalg.norm(c, axis=1), 1e-6)
-    return c + (model.shifts(frame) / norm)[:, None] * c
+    return c + (model.shifts(frame, c) / norm)[:, None] * c
 
 
 def descriptor_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -30,9 +30,9 @@ pairs with their line-of-sight covariances, point-to-line background terms count
 independent per 2 m cell, the heading prior), inflated by the residuals and by a factor
 calibrated on our own wide physics so that its 95 % ellipse holds the truth about 95 %
 of the time. The probability is the mean of a logistic model and boosted trees over the
-evidence (the logistic model alone chooses among a frame pair's candidates;
-confidence_trees.py), fit on simulated scenes of seeds not used for reporting (`mmatch
-fit-confidence`); both ship as JSON beside this file.
+evidence; a second tree ensemble, the chooser, picks among a frame pair's candidates
+(confidence_trees.py). All are fit on simulated scenes of seeds not used for reporting
+(`mmatch fit-confidence`) and ship as JSON beside this file.
 
 Frames: the Ego radar frame, metres and radians; (x, y, yaw) are T_ego_cav's translation
 and rotation about z.
@@ -192,27 +192,32 @@ class ProbabilityModel:
         return self.coef * (x - self.mean) / self.scale
 
     def probability(self, x: np.ndarray) -> np.ndarray:
-        z = np.asarray(x, float)
-        z = np.atleast_2d(z)
-        s = ((z - self.mean) / self.scale) @ self.coef + self.intercept
-        return 1.0 / (1.0 + np.exp(-np.clip(s, -40, 40)))
+        """(n,) the regression's probability of n candidates' evidence x (n, F)."""
+        return self._logistic(self._standardise(x))
+
+    def _standardise(self, x: np.ndarray) -> np.ndarray:
+        return (np.atleast_2d(np.asarray(x, float)) - self.mean) / self.scale
+
+    def _logistic(self, z: np.ndarray) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-np.clip(z @ self.coef + self.intercept, -40, 40)))
+
+    def rate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(confidence (n,), choice (n,)) of one frame pair's n candidates (evidence x (n, F)):
+        the regression's probability, averaged with the trees' when the model has them; and the
+        score that picks among them, the chooser's probability, else the regression's."""
+        z = self._standardise(x)
+        p = self._logistic(z)
+        conf = p if self.trees is None else 0.5 * (p + self.trees.probability(z))
+        choice = p if self.chooser is None or len(p) == 0 else self.chooser.probability(choice_features(z, p))
+        return conf, choice
 
     def confidence(self, x: np.ndarray) -> np.ndarray:
-        """(n,) the confidence of n candidates' evidence x (n, F): the regression's probability,
-        averaged with the trees' when the model has them."""
-        p = self.probability(x)
-        if self.trees is None:
-            return p
-        return 0.5 * (p + self.trees.probability((np.atleast_2d(np.asarray(x, float)) - self.mean) / self.scale))
+        """(n,) the confidence of n candidates (`rate`)."""
+        return self.rate(x)[0]
 
     def choice(self, x: np.ndarray) -> np.ndarray:
-        """(n,) the score that picks among one frame pair's n candidates (evidence x (n, F)): the
-        chooser's probability, else the regression's."""
-        p = self.probability(x)
-        if self.chooser is None or len(p) == 0:
-            return p
-        return self.chooser.probability(choice_features((np.atleast_2d(np.asarray(x, float)) - self.mean)
-                                                        / self.scale, p))
+        """(n,) the score that picks among one frame pair's n candidates (`rate`)."""
+        return self.rate(x)[1]
 
     def to_dict(self) -> dict:
         d = {"features": list(self.features), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
@@ -783,8 +788,7 @@ def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarra
     inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
     X, cov, amb = features(ctx, R, t, pairs, match, inflation)
     out = []
-    p = model.confidence(X) if model is not None else np.full(len(X), np.nan)
-    choice = model.choice(X) if model is not None else p
+    p, choice = model.rate(X) if model is not None else (np.full(len(X), np.nan),) * 2
     for h in range(len(X)):
         reason = REASONS[FEATURES[int(np.argmin(model.logit_terms(X[h])))]] if model is not None else ""
         out.append(Assessment(float(p[h]), cov[h], float(amb[h]), reason, dict(zip(FEATURES, map(float, X[h]))),

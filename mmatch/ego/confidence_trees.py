@@ -4,9 +4,9 @@ The logistic regression weighs each piece of evidence alone; some only mean some
 (a strong RM-net score with a background that fits nowhere else, a lone pair seen by both
 radars). A small gradient-boosted tree ensemble over the same standardised evidence learns
 those interactions. Its probability and the regression's are averaged into the confidence
-that ranks and gates an estimate; the regression alone still chooses among one frame pair's
-candidates (with the average choosing too, 1.5 points fewer scenes had their right candidate
-chosen on the seeds the ensemble was chosen on).
+that ranks and gates an estimate. The average does not choose among one frame pair's
+candidates: choosing by it, 1.5 points fewer scenes had their right candidate chosen on the
+seeds the ensemble was chosen on.
 
 A second ensemble, the chooser, picks among one frame pair's candidates: it reads each
 candidate's evidence, the same evidence relative to the best of its frame pair's candidates, and
