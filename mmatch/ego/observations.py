@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -132,7 +132,16 @@ def observations_shared() -> Iterator[None]:
 
 def observe(frame: SharedFrame, model: ObservationModel = ObservationModel()) -> Observations:
     """Centres and line-of-sight covariances of a frame's vehicles (both estimates)."""
-    return memo("observe", (frame,), lambda: _observe(frame, model), model)
+    return memo("observe", (frame,), lambda: _with_penalty(frame, model), model)
+
+
+def _with_penalty(frame: SharedFrame, model: ObservationModel) -> Observations:
+    """The geometry, shared by models that differ only in camera_penalty (the pose search's and
+    the confidence model's), with this model's penalties."""
+    geometry = replace(model, camera_penalty=0.0)
+    g = memo("observe_geometry", (frame,), lambda: _observe(frame, geometry), geometry)
+    has = point_counts(frame) > 0
+    return Observations(g.centres, g.cov, g.cam_centres, g.cam_cov, np.where(has, model.camera_penalty, 0.0))
 
 
 def _observe(frame: SharedFrame, model: ObservationModel) -> Observations:

@@ -43,6 +43,22 @@ def _rots(yaw: np.ndarray) -> np.ndarray:
     return out
 
 
+def _solve3(M: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solutions x of M x = b for (n, 3, 3) symmetric M, by the adjugate (np.linalg's solve and
+    det cost more than this algebra on a few small systems), and which systems are solvable:
+    det M > 1e-9 and M[1, 1] > 0 (x = 0 elsewhere)."""
+    a, b_, c = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
+    d, e, f = M[:, 1, 1], M[:, 1, 2], M[:, 2, 2]
+    A00, A01, A02 = d * f - e * e, c * e - b_ * f, b_ * e - c * d
+    A11, A12, A22 = a * f - c * c, b_ * c - a * e, a * d - b_ * b_
+    det = a * A00 + b_ * A01 + c * A02
+    ok = (det > 1e-9) & (d > 0)
+    inv = ok / np.where(ok, det, 1.0)
+    b0, b1, b2 = b[:, 0] * inv, b[:, 1] * inv, b[:, 2] * inv
+    return np.column_stack([A00 * b0 + A01 * b1 + A02 * b2, A01 * b0 + A11 * b1 + A12 * b2,
+                            A02 * b0 + A12 * b1 + A22 * b2]), ok
+
+
 def refine(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndarray, bg_other: np.ndarray,
            R: np.ndarray, t: np.ndarray, yaws: np.ndarray | None, cfg: RefineConfig = RefineConfig(),
            tree: cKDTree | None = None, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -116,39 +132,40 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
                 # J = [dr | -I]: J^T W J = [[dr' W dr, -dr' W], [-W dr, W]], J^T W r = [dr' W r, -W r]
                 Wd = (W @ dr[:, :, None])[..., 0]                             # (k, 2)
                 Wr = (W @ r[:, :, None])[..., 0]
-                JWJ = np.empty((len(h_), 3, 3))
-                JWJ[:, 0, 0] = (dr * Wd).sum(axis=1)
-                JWJ[:, 0, 1:] = JWJ[:, 1:, 0] = -Wd
-                JWJ[:, 1:, 1:] = W
-                JWr = np.column_stack([(dr * Wr).sum(axis=1), -Wr])
-                first = np.flatnonzero(np.concatenate([[True], h_[1:] != h_[:-1]]))
-                hs = h_[first]
-                Hm[hs] += np.add.reduceat(JWJ, first, axis=0)
-                g[hs] += np.add.reduceat(JWr, first, axis=0)
+                S = (h_ == np.arange(n_a)[:, None]) @ np.column_stack(
+                    [(dr * Wd).sum(axis=1), Wd, W[:, 0, 0], W[:, 0, 1], W[:, 1, 1], (dr * Wr).sum(axis=1), Wr])
+                Hm[:, 0, 0] += S[:, 0]
+                Hm[:, 0, 1:] -= S[:, 1:3]
+                Hm[:, 1:, 0] = Hm[:, 0, 1:]
+                Hm[:, 1, 1] += S[:, 3]
+                Hm[:, 1, 2] += S[:, 4]
+                Hm[:, 2, 1] += S[:, 4]
+                Hm[:, 2, 2] += S[:, 5]
+                g[:, 0] += S[:, 6]
+                g[:, 1:] -= S[:, 7:9]
         if use_bg:
             gate = cfg.bg_gate_start_m + (cfg.bg_gate_end_m - cfg.bg_gate_start_m) * it / max(cfg.iterations - 1, 1)
             rot = bg_other @ Rm.transpose(0, 2, 1)                                # R p, (h, N, 2)
             moved = rot + t_a[:, None]
             d, k = tree.query(moved.reshape(-1, 2), distance_upper_bound=gate)
-            d, k = d.reshape(n_a, -1), k.reshape(n_a, -1)
-            ok = np.isfinite(d)
-            cnt = ok.sum(axis=1)
-            srt = np.sort(np.where(ok, d, np.inf), axis=1)
-            cut = srt[np.arange(n_a), np.clip(np.ceil(cfg.bg_trim * cnt).astype(int) - 1, 0, None)]
-            ok &= (d <= cut[:, None]) & (cnt[:, None] >= 3)
-            q = tree.data[np.where(ok, k, 0)]
-            r = np.where(ok[..., None], q - moved, 0.0)                          # (H, N, 2)
-            perp = np.where(ok[..., None], np.stack([rot[..., 1], -rot[..., 0]], axis=-1), 0.0)   # -d(R p)/dyaw
-            n_ok = ok.sum(axis=1).astype(float)
-            Hm[:, 0, 0] += w * (perp ** 2).sum(axis=(1, 2))
-            Hm[:, 0, 1] -= w * perp[..., 0].sum(axis=1)
-            Hm[:, 0, 2] -= w * perp[..., 1].sum(axis=1)
-            Hm[:, 1, 0], Hm[:, 2, 0] = Hm[:, 0, 1], Hm[:, 0, 2]
-            Hm[:, 1, 1] += w * n_ok
-            Hm[:, 2, 2] += w * n_ok
-            g[:, 0] += w * (perp * r).sum(axis=(1, 2))
-            g[:, 1] -= w * r[..., 0].sum(axis=1)
-            g[:, 2] -= w * r[..., 1].sum(axis=1)
+            d, k = d.reshape(n_a, -1), k.reshape(n_a, -1)                        # d: inf beyond the gate
+            cnt = np.isfinite(d).sum(axis=1)
+            cut = np.sort(d, axis=1)[np.arange(n_a), np.maximum(np.ceil(cfg.bg_trim * cnt).astype(int) - 1, 0)]
+            # the trimmed share of each hypothesis's correspondences (with >= 3, cut is finite)
+            h_, p_ = np.nonzero((d <= cut[:, None]) & (cnt[:, None] >= 3))
+            rp = rot[h_, p_]                                                      # (m, 2)
+            r = tree.data[k[h_, p_]] - moved[h_, p_]
+            # per correspondence: |dRp/dyaw|^2, -dRp/dyaw (x, y), its product with r, r (x, y), 1
+            terms = np.column_stack([(rp * rp).sum(axis=1), rp[:, 1], -rp[:, 0],
+                                     rp[:, 1] * r[:, 0] - rp[:, 0] * r[:, 1], r, np.ones(len(h_))])
+            S = w * ((h_ == np.arange(n_a)[:, None]) @ terms)                     # (h, 7) sums
+            Hm[:, 0, 0] += S[:, 0]
+            Hm[:, 0, 1:] -= S[:, 1:3]
+            Hm[:, 1:, 0] = Hm[:, 0, 1:]
+            Hm[:, 1, 1] += S[:, 6]
+            Hm[:, 2, 2] += S[:, 6]
+            g[:, 0] += S[:, 3]
+            g[:, 1:] -= S[:, 4:6]
         if yaws is not None:
             gap = (y_a[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi
             near = gap[np.arange(n_a), np.abs(gap).argmin(axis=1)]
@@ -156,12 +173,9 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
             wy = np.radians(cfg.heading_sigma_deg) ** -2
             Hm[:, 0, 0] += wy * on
             g[:, 0] += wy * near * on
-        det = np.linalg.det(Hm)
-        solvable = (det > 1e-9) & (Hm[:, 1, 1] > 0)
+        step, solvable = _solve3(Hm, -g)
         if not solvable.any():
             break
-        step = np.zeros((n_a, 3))
-        step[solvable] = np.linalg.solve(Hm[solvable], -g[solvable][..., None])[..., 0]
         active[idx] = solvable & (np.abs(step).max(axis=1) >= 1e-4)
         yaw[idx] = y_a + step[:, 0]
         t[idx] = t_a + step[:, 1:]

@@ -119,6 +119,45 @@ def test_refinement_pulls_a_rough_start_onto_vehicles_background_and_heading():
     assert np.linalg.norm(t - T_t) < 0.6
 
 
+def test_refining_many_hypotheses_at_once_gives_each_its_own_fit():
+    from mmatch.ego.refine import refine_many
+    rng = np.random.default_rng(5)
+    T_R, T_t = _rot(30), np.array([5.0, 25.0])
+    cars = rng.uniform([-20, 15], [20, 60], (6, 2))
+    bg = np.vstack([np.column_stack([np.full(90, -12.0), np.linspace(0, 80, 90)]),
+                    np.column_stack([np.linspace(-12, 20, 40), np.full(40, 70.0)])])
+    to_cav = lambda p: (p - T_t) @ T_R           # noqa: E731
+    own = _frame(list(cars), cars, np.c_[bg, np.zeros(len(bg))])
+    oth = to_cav(cars) + rng.normal(0, 0.3, cars.shape)
+    other = _frame(list(oth), oth, np.c_[to_cav(bg) + rng.normal(0, 0.2, bg.shape), np.zeros(len(bg))])
+    A, B, D = observe(own), observe(other), np.zeros((6, 6))
+    yaws = np.radians([30.0, 120.0, 210.0, 300.0])
+    R0 = np.stack([_rot(d) for d in (34.0, 25.0, 30.0, 120.0, -60.0)])
+    t0 = T_t + rng.normal(0, 2.0, (5, 2))
+    t0[0] = T_t + [1.0, -1.0]
+    args = (A, B, D, own.background[:, :2], other.background[:, :2])
+    Rs, ts = refine_many(*args, R0, t0, yaws)
+    for h in range(len(R0)):
+        R1, t1 = refine(*args, R0[h], t0[h], yaws)
+        np.testing.assert_allclose(Rs[h], R1, atol=1e-9)
+        np.testing.assert_allclose(ts[h], t1, atol=1e-9)
+    assert np.linalg.norm(ts[0] - T_t) < 0.6                      # and the near start converges
+
+
+def test_the_refinement_solves_its_normal_equations_exactly_and_skips_singular_ones():
+    from mmatch.ego.refine import _solve3
+    rng = np.random.default_rng(0)
+    J = rng.normal(size=(20, 5, 3))
+    M = J.transpose(0, 2, 1) @ J                                  # symmetric positive definite
+    M[3] = 0.0                                                     # nothing to solve
+    M[7, 1, :] = M[7, :, 1] = 0.0                                  # no x information
+    b = rng.normal(size=(20, 3))
+    x, ok = _solve3(M, b)
+    assert not ok[3] and not ok[7] and ok.sum() == 18
+    np.testing.assert_array_equal(x[~ok], 0.0)
+    np.testing.assert_allclose(x[ok], np.linalg.solve(M[ok], b[ok][..., None])[..., 0], rtol=1e-9, atol=1e-12)
+
+
 def test_constrained_aligner_beats_anchored_icp_with_true_pairs(hard_dir):
     """Oracle pairs on label frames: the one least-squares fit aligns more scenes than ICP."""
     oracle, consensus = get_matcher("oracle"), get_matcher("consensus")
@@ -172,6 +211,9 @@ def test_one_fusion_observes_each_frame_once_and_the_shared_arrays_cannot_be_cha
     with observations_shared():
         a = observe(f)
         assert observe(f) is a and observe(f, ObservationModel(camera_bearing=False)) is not a
+        b = observe(f, ObservationModel(camera_penalty=2.0))      # the confidence model's penalty
+        assert b.centres is a.centres and b.cov is a.cov            # same geometry, computed once
+        assert b.cam_penalty[0] == 2.0 and a.cam_penalty[0] == ObservationModel().camera_penalty
         assert observe(replace(f)) is not a                          # another frame object
         with pytest.raises(ValueError):
             a.centres[0, 0] = 1.0
