@@ -55,3 +55,17 @@ def test_scenes_record_their_physics_and_a_scene_without_covisible_vehicles_is_v
     assert 1 <= len(few) <= 12                                   # about 10 % of the scenes
     res = evaluate_scene(few[0], EvalConfig())
     assert "rejected" not in res and res["gt_pairs"] == len(few[0].gt_pairs)
+
+
+def test_the_shipped_families_beyond_wide_load_and_stress_lies_inside_the_training_family():
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2] / "cfg" / "physics"
+    wide, wider, stress = family("wide"), family(root / "wider.toml"), family(root / "stress.toml")
+    widened = 0
+    for key, (lo, hi) in wider.ranges.items():
+        w_lo, w_hi = wide.ranges[key]
+        s_lo, s_hi = stress.ranges[key]
+        assert lo <= w_lo and hi >= w_hi, key                    # the training family covers wide
+        assert lo <= s_lo and hi >= s_hi, key                    # and the stress family
+        widened += (lo, hi) != (w_lo, w_hi)
+    assert widened == 8
