@@ -59,6 +59,28 @@ def _solve3(M: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                             A02 * b0 + A12 * b1 + A22 * b2]), ok
 
 
+def _add_terms(Hm: np.ndarray, g: np.ndarray, h_: np.ndarray, dr: np.ndarray, Wd: np.ndarray,
+               W00: np.ndarray, W01: np.ndarray, W11: np.ndarray, Wr: np.ndarray, w: float = 1.0) -> None:
+    """Add k residual terms to their hypotheses' normal equations Hm (h, 3, 3), g (h, 3), in place.
+
+    Term i belongs to hypothesis h_[i]; its residual r has weight W (2x2 symmetric: W00, W01,
+    W11) and Jacobian J = [dr | -I] in (yaw, tx, ty), Wd = W dr and Wr = W r (k, 2); w scales
+    all. J^T W J = [[dr' W dr, -dr' W], [-W dr, W]] and J^T W r = [dr' W r, -W r], summed per
+    hypothesis in one matrix product.
+    """
+    S = w * ((h_ == np.arange(len(Hm))[:, None]) @ np.column_stack(
+        [(dr * Wd).sum(axis=1), Wd, W00, W01, W11, (dr * Wr).sum(axis=1), Wr]))
+    Hm[:, 0, 0] += S[:, 0]
+    Hm[:, 0, 1:] -= S[:, 1:3]
+    Hm[:, 1:, 0] = Hm[:, 0, 1:]
+    Hm[:, 1, 1] += S[:, 3]
+    Hm[:, 1, 2] += S[:, 4]
+    Hm[:, 2, 1] += S[:, 4]
+    Hm[:, 2, 2] += S[:, 5]
+    g[:, 0] += S[:, 6]
+    g[:, 1:] -= S[:, 7:9]
+
+
 def refine(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndarray, bg_other: np.ndarray,
            R: np.ndarray, t: np.ndarray, yaws: np.ndarray | None, cfg: RefineConfig = RefineConfig(),
            tree: cKDTree | None = None, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -129,20 +151,8 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
                 r = ca - (rb + t_a[h_])
                 dr = np.column_stack([rb[:, 1], -rb[:, 0]])                   # -d(R b)/dyaw
                 W = inv2(Sa + Rk @ Sb @ Rk.transpose(0, 2, 1))
-                # J = [dr | -I]: J^T W J = [[dr' W dr, -dr' W], [-W dr, W]], J^T W r = [dr' W r, -W r]
-                Wd = (W @ dr[:, :, None])[..., 0]                             # (k, 2)
-                Wr = (W @ r[:, :, None])[..., 0]
-                S = (h_ == np.arange(n_a)[:, None]) @ np.column_stack(
-                    [(dr * Wd).sum(axis=1), Wd, W[:, 0, 0], W[:, 0, 1], W[:, 1, 1], (dr * Wr).sum(axis=1), Wr])
-                Hm[:, 0, 0] += S[:, 0]
-                Hm[:, 0, 1:] -= S[:, 1:3]
-                Hm[:, 1:, 0] = Hm[:, 0, 1:]
-                Hm[:, 1, 1] += S[:, 3]
-                Hm[:, 1, 2] += S[:, 4]
-                Hm[:, 2, 1] += S[:, 4]
-                Hm[:, 2, 2] += S[:, 5]
-                g[:, 0] += S[:, 6]
-                g[:, 1:] -= S[:, 7:9]
+                _add_terms(Hm, g, h_, dr, (W @ dr[:, :, None])[..., 0], W[:, 0, 0], W[:, 0, 1], W[:, 1, 1],
+                           (W @ r[:, :, None])[..., 0])
         if use_bg:
             gate = cfg.bg_gate_start_m + (cfg.bg_gate_end_m - cfg.bg_gate_start_m) * it / max(cfg.iterations - 1, 1)
             rot = bg_other @ Rm.transpose(0, 2, 1)                                # R p, (h, N, 2)
@@ -154,18 +164,10 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
             # the trimmed share of each hypothesis's correspondences (with >= 3, cut is finite)
             h_, p_ = np.nonzero((d <= cut[:, None]) & (cnt[:, None] >= 3))
             rp = rot[h_, p_]                                                      # (m, 2)
+            dr = np.column_stack([rp[:, 1], -rp[:, 0]])                           # -d(R p)/dyaw
             r = tree.data[k[h_, p_]] - moved[h_, p_]
-            # per correspondence: |dRp/dyaw|^2, -dRp/dyaw (x, y), its product with r, r (x, y), 1
-            terms = np.column_stack([(rp * rp).sum(axis=1), rp[:, 1], -rp[:, 0],
-                                     rp[:, 1] * r[:, 0] - rp[:, 0] * r[:, 1], r, np.ones(len(h_))])
-            S = w * ((h_ == np.arange(n_a)[:, None]) @ terms)                     # (h, 7) sums
-            Hm[:, 0, 0] += S[:, 0]
-            Hm[:, 0, 1:] -= S[:, 1:3]
-            Hm[:, 1:, 0] = Hm[:, 0, 1:]
-            Hm[:, 1, 1] += S[:, 6]
-            Hm[:, 2, 2] += S[:, 6]
-            g[:, 0] += S[:, 3]
-            g[:, 1:] -= S[:, 4:6]
+            one, zero = np.ones(len(h_)), np.zeros(len(h_))                       # W = I (times w)
+            _add_terms(Hm, g, h_, dr, dr, one, zero, one, r, w)
         if yaws is not None:
             gap = (y_a[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi
             near = gap[np.arange(n_a), np.abs(gap).argmin(axis=1)]
