@@ -34,12 +34,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmatch.edge.commands.progress import Progress
     from mmatch.ego.confidence import MODEL_PATH, load_model
     from mmatch.ego.confidence_fit import fit_model, neutral_model
     from mmatch.ego.registry import DEFAULT_MATCHER
     from mmatch.errors import ConfigError, ParseError
-    from mmatch.evaluate import EvalConfig, evaluate_dir
 
     from mmatch.ego.registry import MATCHERS
 
@@ -73,15 +71,7 @@ def run(args: argparse.Namespace) -> int:
             current, model_path = None, str(Path(tmp) / "neutral.json")
             Path(model_path).write_text(neutral_model().to_json())
         priors = [True, False] if args.without_heading else [True]
-        results: dict[bool, list[dict]] = {h: [] for h in priors}
-        for heading in priors:
-            for folder in args.folders:
-                for m in matchers:
-                    cfg = EvalConfig(matcher=m, confidence_threshold=0.0, confidence_model=model_path,
-                                     heading_prior=heading)
-                    _, res = evaluate_dir(folder, cfg, args.jobs,
-                                          Progress(f"fit {m}" + ("" if heading else " without heading")))
-                    results[heading].extend(res)
+        results = {heading: _evaluate(args, matchers, model_path, heading, "fit") for heading in priors}
     meta = {"folders": args.folders, "matchers": matchers}
     try:
         model = fit_model(results[True], args.max_gross, args.min_coverage, meta=meta,
@@ -125,19 +115,28 @@ def _with_trees(model, reuse: list[dict] | None, args: argparse.Namespace):
 def _runs(model, args: argparse.Namespace, heading: bool) -> list[dict]:
     """The default matcher's per-scene results on the folders under `model`, every candidate
     emitted, with or without the heading prior."""
-    from mmatch.edge.commands.progress import Progress
     from mmatch.ego.registry import DEFAULT_MATCHER
-    from mmatch.evaluate import EvalConfig, evaluate_dir
 
-    results: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.json"
         path.write_text(model.to_json())
-        for folder in args.folders:
-            cfg = EvalConfig(matcher=DEFAULT_MATCHER, confidence_threshold=0.0, confidence_model=str(path),
-                             heading_prior=heading)
-            _, res = evaluate_dir(folder, cfg, args.jobs, Progress(
-                f"fit trees {DEFAULT_MATCHER}" + ("" if heading else " without heading")))
+        return _evaluate(args, [DEFAULT_MATCHER], str(path), heading, "fit trees")
+
+
+def _evaluate(args: argparse.Namespace, matchers: list[str], model_path: str | None, heading: bool,
+              label: str) -> list[dict]:
+    """Per-scene results of every folder under each matcher (folder by folder), every candidate
+    emitted, under the confidence model at model_path (None: the packaged one), with or
+    without the heading prior."""
+    from mmatch.edge.commands.progress import Progress
+    from mmatch.evaluate import EvalConfig, evaluate_dir
+
+    results: list[dict] = []
+    for folder in args.folders:
+        for m in matchers:
+            cfg = EvalConfig(matcher=m, confidence_threshold=0.0, confidence_model=model_path, heading_prior=heading)
+            progress = Progress(f"{label} {m}" + ("" if heading else " without heading"))
+            _, res = evaluate_dir(folder, cfg, args.jobs, progress)
             results.extend(res)
     return results
 
