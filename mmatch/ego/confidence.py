@@ -193,9 +193,10 @@ class ProbabilityModel:
 
     def probability(self, x: np.ndarray) -> np.ndarray:
         """(n,) the regression's probability of n candidates' evidence x (n, F)."""
-        return self._logistic(self._standardise(x))
+        return self._logistic(self.standardise(x))
 
-    def _standardise(self, x: np.ndarray) -> np.ndarray:
+    def standardise(self, x: np.ndarray) -> np.ndarray:
+        """(n, F) evidence x as the regression and the trees read it: centred and scaled."""
         return (np.atleast_2d(np.asarray(x, float)) - self.mean) / self.scale
 
     def _logistic(self, z: np.ndarray) -> np.ndarray:
@@ -205,7 +206,7 @@ class ProbabilityModel:
         """(confidence (n,), choice (n,)) of one frame pair's n candidates (evidence x (n, F)):
         the regression's probability, averaged with the trees' when the model has them; and the
         score that picks among them, the chooser's probability, else the regression's."""
-        z = self._standardise(x)
+        z = self.standardise(x)
         p = self._logistic(z)
         conf = p if self.trees is None else 0.5 * (p + self.trees.probability(z))
         choice = p if self.chooser is None or len(p) == 0 else self.chooser.probability(choice_features(z, p))

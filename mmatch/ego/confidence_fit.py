@@ -123,7 +123,7 @@ def fit_tree_stage(results: list[dict], model: ProbabilityModel, meta: dict | No
     X, y, _, sid = training_rows(results)
     if len(X) < 20 or y.all() or not y.any():
         raise ValueError(f"need at least 20 candidates with both outcomes, got {len(X)}")
-    Z = (X - model.mean) / model.scale
+    Z = model.standardise(X)
     trees = fit_trees(Z, y)
     p = model.probability(X)
     C = np.zeros((len(X), 2 * Z.shape[1] + 4))
