@@ -155,7 +155,9 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     # the learned membership reads Doppler against the stationary world: without an ego-motion
     # estimate the fixed frustum tests below decide
     model = load_membership(cfg.separation.membership_model) if cfg.separation.learned and ego.ok else None
-    sig_d = stationary_doppler_sigma(points, ego.velocity, cfg.radar) if ego.ok else None
+    # each point's stationary Doppler accuracy: the learned membership and the Doppler assignment read it
+    sig_d = stationary_doppler_sigma(points, ego.velocity, cfg.radar) \
+        if ego.ok and (model is not None or cfg.separation.doppler_assign) else None
     if model is not None and proj is not None:
         cands = candidates(points, vb, camera, proj, ego.residual, moving, ego.velocity, cfg.radar, sig_d)
         scene = CandidateScene(points, proj, ego.residual, sig_d, vb, camera)
