@@ -53,7 +53,7 @@ class ConsensusConfig:
                                          # 86 ms median, success 1.0 -> 0.95); frames of up to about
                                          # 15 vehicles a view stay below it (figures unchanged);
                                          # `rmnet` is the matcher for dense traffic
-    refine_hypotheses: int = 8          # best coarse hypotheses refined and rescored
+    refine_hypotheses: int = 16         # best coarse hypotheses refined and rescored
     refine_with_prior: int = 4          # the same when a track predicts the transform (prior + 3)
     quick_iterations: int = 3           # refinement rounds of a tracking frame (prediction only)
     quick_background_weight: float = 10.0  # all background terms of a tracking frame's refinement
