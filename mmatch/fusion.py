@@ -346,9 +346,9 @@ def _other_hypotheses(match: MatchResult, R: np.ndarray, t: np.ndarray, n: int, 
     score lacks (ego/confidence.py); with the truth among the candidates it picks it often
     (README, "Which candidates the arbiter weighs"). Only rivals scoring at least min_share of
     the best hypothesis' score are weighed: each costs a confidence assessment (about 0.5 ms),
-    and weaker ones are hardly ever chosen (on wide hard seeds 1, 3, 4, shares 0.5 / 0.6 / 0.7 /
-    0.8 gave pair F1 0.934 / 0.935 / 0.935 / 0.933 and candidates grossly wrong 0.112 / 0.112 /
-    0.113 / 0.115, against 0.934 and 0.110 for every rival at +2.4 ms)."""
+    and weaker ones are hardly ever chosen (on wide hard seeds 1, 3, 4, shares 0 / 0.5 / 0.6 /
+    0.7 / 0.8 gave pair F1 0.933 / 0.933 / 0.934 / 0.934 / 0.931 and candidates grossly wrong
+    0.115 / 0.113 / 0.113 / 0.115 / 0.117, 0.6 for about 1 ms less than 0)."""
     hyp = match.hypotheses
     if hyp is None or len(hyp.R) == 0 or (n <= 0 and per_direction <= 0) or len(R) == 0:
         return []
