@@ -212,14 +212,6 @@ class ProbabilityModel:
         choice = p if self.chooser is None or len(p) == 0 else self.chooser.probability(choice_features(z, p))
         return conf, choice
 
-    def confidence(self, x: np.ndarray) -> np.ndarray:
-        """(n,) the confidence of n candidates (`rate`)."""
-        return self.rate(x)[0]
-
-    def choice(self, x: np.ndarray) -> np.ndarray:
-        """(n,) the score that picks among one frame pair's n candidates (`rate`)."""
-        return self.rate(x)[1]
-
     def to_dict(self) -> dict:
         d = {"features": list(self.features), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
              "coef": self.coef.tolist(), "intercept": float(self.intercept), "inflation": float(self.inflation),

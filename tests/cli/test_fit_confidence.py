@@ -57,8 +57,8 @@ def test_fits_a_model_of_todays_evidence(folder, tmp_path, capsys):
     assert model.trees is not None and model.meta["trees"]["matcher"] == "consensus-rmnet"
     assert sub.trees is not None and sub.chooser is not None and sub.meta["trees"]["heading_prior"] is False
     x = np.array([model.mean, model.mean + model.scale])
-    np.testing.assert_allclose(again.confidence(x), model.confidence(x))
-    np.testing.assert_allclose(model.confidence(x), 0.5 * (model.probability(x) + model.trees.probability(
+    np.testing.assert_allclose(again.rate(x)[0], model.rate(x)[0])
+    np.testing.assert_allclose(model.rate(x)[0], 0.5 * (model.probability(x) + model.trees.probability(
         (x - model.mean) / model.scale)))
 
 

@@ -31,7 +31,7 @@ def test_the_packaged_model_averages_its_regression_and_trees():
     model = load_model()
     assert model.trees is not None and model.without_heading.trees is not None
     x = model.mean + model.scale * np.random.default_rng(0).normal(size=(20, len(model.mean)))
-    p, c = model.probability(x), model.confidence(x)
+    p, c = model.probability(x), model.rate(x)[0]
     assert np.all((c >= 0) & (c <= 1)) and not np.allclose(p, c)
     np.testing.assert_allclose(c, 0.5 * (p + model.trees.probability((x - model.mean) / model.scale)))
 
@@ -48,7 +48,7 @@ def test_the_chooser_reads_each_candidate_against_its_competitors():
     model = load_model()
     assert model.chooser is not None and model.without_heading.chooser is not None
     x = model.mean + model.scale * np.random.default_rng(1).normal(size=(5, len(model.mean)))
-    c = model.choice(x)
+    c = model.rate(x)[1]
     assert c.shape == (5,) and np.all((c >= 0) & (c <= 1)) and not np.allclose(c, model.probability(x))
     plain = replace(model, chooser=None)                      # without a chooser the regression chooses
-    assert plain.choice(x).tolist() == plain.probability(x).tolist()
+    assert plain.rate(x)[1].tolist() == plain.probability(x).tolist()
