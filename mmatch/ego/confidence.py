@@ -149,7 +149,7 @@ class Assessment:
     """confidence: P(within 2 m / 5 deg) in 0-1; covariance (3, 3) of (x, y, yaw) in m, m, rad;
     ambiguity: the best distinct alternative's score relative to the estimate's (0 none,
     1 as good, > 1 better); reason: what weighs most against it; features: the evidence;
-    choice: the score that chooses among one frame pair's candidates (ProbabilityModel.choice;
+    choice: the score that chooses among one frame pair's candidates (ProbabilityModel.rate's second;
     NaN: the confidence chooses)."""
 
     confidence: float
