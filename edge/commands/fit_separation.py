@@ -25,7 +25,8 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from mmatch.cav.membership import (CONTEXT_FEATURES, FEATURES, MODEL_PATH, box_training_rows,
-                                       context_training_pairs, fit_box_model, fit_membership, training_pairs)
+                                       context_training_pairs, fit_box_model, fit_membership,
+                                       labelled_candidates, training_pairs)
     from mmatch.errors import ParseError
     from mmatch.scene_io import load_scene
 
@@ -37,20 +38,21 @@ def run(args: argparse.Namespace) -> int:
         for f in files:
             s = load_scene(f)
             views += [s.ego, s.cav]
-    X, y = training_pairs(views)
+    prepared = labelled_candidates(views)         # each view's ego-motion and candidates, once
+    X, y = training_pairs(views, prepared=prepared)
     try:
         model = fit_membership(X, y, seed=args.seed, threshold=args.threshold, meta={"folders": args.folders})
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
     if args.context:
-        X2, y2 = context_training_pairs(views, model)
+        X2, y2 = context_training_pairs(views, model, prepared=prepared)
         try:
             context = fit_membership(X2, y2, hidden=(64, 32), seed=args.seed, threshold=args.threshold,
                                      features=FEATURES + CONTEXT_FEATURES)
         except ValueError as exc:
             raise ParseError(str(exc)) from exc
         model = replace(model, context=context)
-    Xb, yb = box_training_rows(views, model)
+    Xb, yb = box_training_rows(views, model, prepared=prepared)
     try:
         model = replace(model, box=fit_box_model(Xb, yb, args.box_threshold))
     except ValueError as exc:

@@ -339,16 +339,30 @@ def _labelled_candidates(views: list, accuracy: RadarAccuracyConfig, egomotion=N
         yield v, c, scene, ego, pr
 
 
+def labelled_candidates(views: list, accuracy: RadarAccuracyConfig = RadarAccuracyConfig(),
+                        egomotion=None) -> list[tuple]:
+    """`_labelled_candidates` of views with box ids, computed once for the three fits of
+    `mmatch fit-separation` (training_pairs, context_training_pairs, box_training_rows take it
+    as `prepared`; each would otherwise redo every view's ego-motion fit and candidates)."""
+    return list(_labelled_candidates(views, accuracy, egomotion, labels=False))
+
+
+def _prepared(views: list, accuracy: RadarAccuracyConfig, egomotion, prepared: list | None, labels: bool):
+    rows = prepared if prepared is not None else _labelled_candidates(views, accuracy, egomotion, labels)
+    return (r for r in rows if not labels or r[0].point_labels is not None)
+
+
 def _truth(v, c: Candidates) -> np.ndarray:
     return (v.point_labels[c.point] == v.box_ids[c.box]) & (v.box_ids[c.box] >= 0)
 
 
 def training_pairs(views: list, accuracy: RadarAccuracyConfig = RadarAccuracyConfig(),
-                   egomotion=None) -> tuple[np.ndarray, np.ndarray]:
+                   egomotion=None, prepared: list | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Features (C, F) and truth (C,) of every candidate pair of labelled views (`View`s with
-    point_labels and box_ids): a pair is true when the point's label is the box's vehicle."""
+    point_labels and box_ids): a pair is true when the point's label is the box's vehicle.
+    prepared: `labelled_candidates(views, ...)` when the caller has it."""
     Xs, ys = [], []
-    for v, c, _, _, _ in _labelled_candidates(views, accuracy, egomotion):
+    for v, c, _, _, _ in _prepared(views, accuracy, egomotion, prepared, labels=True):
         Xs.append(c.features)
         ys.append(_truth(v, c))
     X = np.vstack(Xs) if Xs else np.zeros((0, len(FEATURES)))
@@ -357,12 +371,12 @@ def training_pairs(views: list, accuracy: RadarAccuracyConfig = RadarAccuracyCon
 
 def context_training_pairs(views: list, model: MembershipModel,
                            accuracy: RadarAccuracyConfig = RadarAccuracyConfig(),
-                           egomotion=None) -> tuple[np.ndarray, np.ndarray]:
+                           egomotion=None, prepared: list | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The context stage's features (C, F + CF) under `model`'s first stage, and truth (C,), of
-    the candidates of labelled views with an ego-motion estimate."""
+    the candidates of labelled views with an ego-motion estimate (prepared: as training_pairs)."""
     first = replace(model, context=None)
     Xs, ys = [], []
-    for v, c, scene, _, _ in _labelled_candidates(views, accuracy, egomotion):
+    for v, c, scene, _, _ in _prepared(views, accuracy, egomotion, prepared, labels=True):
         if scene is None or len(c.point) == 0:
             continue
         owner, p = assign(c, len(v.points), first)
@@ -372,11 +386,12 @@ def context_training_pairs(views: list, model: MembershipModel,
     return X, np.concatenate(ys) if ys else np.zeros(0, bool)
 
 
-def box_training_rows(views: list, model: MembershipModel, accuracy: RadarAccuracyConfig = RadarAccuracyConfig()
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Box features (B, len(BOX_FEATURES)) under `model`'s assignment, and truth (B,): a real vehicle."""
+def box_training_rows(views: list, model: MembershipModel, accuracy: RadarAccuracyConfig = RadarAccuracyConfig(),
+                      prepared: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Box features (B, len(BOX_FEATURES)) under `model`'s assignment, and truth (B,): a real
+    vehicle (prepared: as training_pairs)."""
     Xs, ys = [], []
-    for v, c, scene, ego, pr in _labelled_candidates(views, accuracy, labels=False):
+    for v, c, scene, ego, pr in _prepared(views, accuracy, None, prepared, labels=False):
         owner, p = assign(c, len(v.points), model, scene=scene)
         Xs.append(box_features(c, p, owner, ego.moving, v.boxes, v.camera, pr))
         ys.append(v.box_ids >= 0)

@@ -131,6 +131,25 @@ def test_fit_separation_fits_both_stages_and_can_leave_the_context_out(folder, t
     assert load_model(str(out2)).context is None
 
 
+def test_the_three_fits_read_the_candidates_computed_once_as_they_would_compute_them(views):
+    """fit-separation computes each view's candidates once; its three training sets are the same
+    as each function computing its own, and a view without point labels serves the box fit only."""
+    from mmatch.cav.membership import (box_training_rows, context_training_pairs, labelled_candidates,
+                                       training_pairs)
+    unlabelled = replace(views[0], point_labels=None)
+    vs = [unlabelled] + list(views[1:])
+    prepared = labelled_candidates(vs)
+    assert len(prepared) == len(vs)
+    model = load_model(None)
+    for fn, args in ((training_pairs, ()), (context_training_pairs, (model,)), (box_training_rows, (model,))):
+        X, y = fn(vs, *args)
+        Xp, yp = fn(vs, *args, prepared=prepared)
+        np.testing.assert_array_equal(X, Xp)
+        np.testing.assert_array_equal(y, yp)
+    assert len(box_training_rows(vs, model)[1]) == sum(len(v.boxes) for v in vs)
+    assert len(training_pairs(vs)[1]) < len(training_pairs(list(views))[1])
+
+
 def test_without_a_context_stage_the_main_cluster_decides(views, monkeypatch):
     """A model file from before the context stage still loads and separates as it did."""
     model = load_model(None)
