@@ -13,7 +13,7 @@ from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_ce
                              velocity_heading_yaws, without_heading_prior)
 from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, shared_view, threshold
 from mmatch.ego.observations import observations_shared, observe
-from mmatch.ego.rigid import rot2, se2_to_matrix
+from mmatch.ego.rigid import near_transforms, rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER, get_aligner, get_matcher
 from mmatch.ego.track import TrackConfig, Tracker
@@ -357,8 +357,8 @@ def _other_hypotheses(match: MatchResult, R: np.ndarray, t: np.ndarray, n: int, 
     out: list[tuple[np.ndarray, np.ndarray]] = []
 
     def take_if_distinct(h: int) -> bool:
-        dy = np.abs((np.asarray(taken_yaw) - yaw[h] + np.pi) % (2 * np.pi) - np.pi)
-        if np.any((np.linalg.norm(np.asarray(taken_t) - hyp.t[h], axis=1) < distinct_m) & (dy < np.radians(distinct_deg))):
+        if near_transforms(yaw[[h]], hyp.t[[h]], np.asarray(taken_yaw), np.asarray(taken_t), distinct_m,
+                           distinct_deg).any():
             return False
         out.append((hyp.R[h], hyp.t[h]))
         taken_yaw.append(yaw[h])
@@ -379,7 +379,7 @@ def _other_hypotheses(match: MatchResult, R: np.ndarray, t: np.ndarray, n: int, 
         score = np.asarray(hyp.score, np.float64)
         strong = score >= min_share * max(float(np.max(score)), 0.0)
         for members in (slid, quarter == 1, quarter == 2, quarter == 3):
-            kept = int(members[taken_h].sum()) if taken_h else 0     # the n best may hold some already
+            kept = int(members[taken_h].sum())                      # the n best may hold some already
             for h in order[(members & strong)[order]]:
                 if kept >= per_direction:
                     break

@@ -104,6 +104,14 @@ def yaw_of(T: np.ndarray) -> float:
     return float(np.arctan2(T[1, 0], T[0, 0]))
 
 
+def near_transforms(yaw_a: np.ndarray, t_a: np.ndarray, yaw_b: np.ndarray, t_b: np.ndarray, distinct_m: float,
+                    distinct_deg: float) -> np.ndarray:
+    """(A, B) whether planar transforms a (yaw (A,) rad, t (A, 2) m) and b lie within distinct_m
+    and distinct_deg of each other."""
+    dy = np.abs((yaw_a[:, None] - yaw_b[None] + np.pi) % (2 * np.pi) - np.pi)
+    return (np.linalg.norm(t_a[:, None] - t_b[None], axis=2) < distinct_m) & (dy < np.radians(distinct_deg))
+
+
 def distinct_best(R: np.ndarray, t: np.ndarray, order: np.ndarray, n: int, distinct_m: float,
                   distinct_deg: float) -> np.ndarray:
     """Indices of up to n planar transforms R (H, 2, 2), t (H, 2), taken in `order` (best first),
@@ -113,12 +121,10 @@ def distinct_best(R: np.ndarray, t: np.ndarray, order: np.ndarray, n: int, disti
     once (in dense traffic hundreds of hypotheses agree on the best transform), and the rest
     are taken greedily on their block's pairwise nearness."""
     yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
-    max_dy = np.radians(distinct_deg)
     order = np.asarray(order, int)
 
     def near(i: np.ndarray, j: np.ndarray) -> np.ndarray:
-        dy = np.abs((yaw[i][:, None] - yaw[j][None] + np.pi) % (2 * np.pi) - np.pi)
-        return (np.linalg.norm(t[i][:, None] - t[j][None], axis=2) < distinct_m) & (dy < max_dy)
+        return near_transforms(yaw[i], t[i], yaw[j], t[j], distinct_m, distinct_deg)
 
     chosen: list[int] = []
     lo, block = 0, 16
