@@ -59,26 +59,24 @@ def _solve3(M: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                             A02 * b0 + A12 * b1 + A22 * b2]), ok
 
 
-def _add_terms(Hm: np.ndarray, g: np.ndarray, h_: np.ndarray, dr: np.ndarray, Wd: np.ndarray,
-               W00: np.ndarray, W01: np.ndarray, W11: np.ndarray, Wr: np.ndarray, w: float = 1.0) -> None:
-    """Add k residual terms to their hypotheses' normal equations Hm (h, 3, 3), g (h, 3), in place.
+# J^T W J and J^T W r from the nine per-hypothesis sums of `_normal_equations`: (yaw, tx, ty)
+_H_FROM_SUMS = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])
+_H_SIGNS = np.array([1.0, -1.0, -1.0, -1.0, 1.0, 1.0, -1.0, 1.0, 1.0])
+
+
+def _normal_equations(n: int, h_: np.ndarray, dr: np.ndarray, Wd: np.ndarray, W00: np.ndarray,
+                      W01: np.ndarray, W11: np.ndarray, Wr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations H (n, 3, 3), g (n, 3) of n hypotheses from k residual terms.
 
     Term i belongs to hypothesis h_[i]; its residual r has weight W (2x2 symmetric: W00, W01,
-    W11) and Jacobian J = [dr | -I] in (yaw, tx, ty), Wd = W dr and Wr = W r (k, 2); w scales
-    all. J^T W J = [[dr' W dr, -dr' W], [-W dr, W]] and J^T W r = [dr' W r, -W r], summed per
-    hypothesis in one matrix product.
+    W11, any scale folded in) and Jacobian J = [dr | -I] in (yaw, tx, ty), Wd = W dr and
+    Wr = W r (k, 2). J^T W J = [[dr' W dr, -dr' W], [-W dr, W]] and J^T W r = [dr' W r, -W r],
+    summed per hypothesis in one matrix product.
     """
-    S = w * ((h_ == np.arange(len(Hm))[:, None]) @ np.column_stack(
-        [(dr * Wd).sum(axis=1), Wd, W00, W01, W11, (dr * Wr).sum(axis=1), Wr]))
-    Hm[:, 0, 0] += S[:, 0]
-    Hm[:, 0, 1:] -= S[:, 1:3]
-    Hm[:, 1:, 0] = Hm[:, 0, 1:]
-    Hm[:, 1, 1] += S[:, 3]
-    Hm[:, 1, 2] += S[:, 4]
-    Hm[:, 2, 1] += S[:, 4]
-    Hm[:, 2, 2] += S[:, 5]
-    g[:, 0] += S[:, 6]
-    g[:, 1:] -= S[:, 7:9]
+    S = (h_ == np.arange(n)[:, None]) @ np.column_stack(
+        [(dr * Wd).sum(axis=1), Wd, W00, W01, W11, (dr * Wr).sum(axis=1), Wr])
+    g = S[:, 6:9] * np.array([1.0, -1.0, -1.0])
+    return (S[:, _H_FROM_SUMS] * _H_SIGNS).reshape(n, 3, 3), g
 
 
 def refine(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndarray, bg_other: np.ndarray,
@@ -131,8 +129,7 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
         idx = np.flatnonzero(active)
         y_a, t_a, n_a = yaw[idx], t[idx], len(idx)
         Rm = _rots(y_a)                                           # (h, 2, 2)
-        Hm = np.zeros((n_a, 3, 3))
-        g = np.zeros((n_a, 3))
+        terms = []                                                # (h_, dr, W dr, W00, W01, W11, W r)
         if len(A.centres) and len(B.centres):
             dm, mode = mahalanobis(AB, None, Rm, t_a, with_modes=True)
             dm = np.where(ok_pair[None], dm, np.inf)
@@ -151,8 +148,8 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
                 r = ca - (rb + t_a[h_])
                 dr = np.column_stack([rb[:, 1], -rb[:, 0]])                   # -d(R b)/dyaw
                 W = inv2(Sa + Rk @ Sb @ Rk.transpose(0, 2, 1))
-                _add_terms(Hm, g, h_, dr, (W @ dr[:, :, None])[..., 0], W[:, 0, 0], W[:, 0, 1], W[:, 1, 1],
-                           (W @ r[:, :, None])[..., 0])
+                terms.append((h_, dr, (W @ dr[:, :, None])[..., 0], W[:, 0, 0], W[:, 0, 1], W[:, 1, 1],
+                               (W @ r[:, :, None])[..., 0]))
         if use_bg:
             gate = cfg.bg_gate_start_m + (cfg.bg_gate_end_m - cfg.bg_gate_start_m) * it / max(cfg.iterations - 1, 1)
             rot = bg_other @ Rm.transpose(0, 2, 1)                                # R p, (h, N, 2)
@@ -166,8 +163,12 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
             rp = rot[h_, p_]                                                      # (m, 2)
             dr = np.column_stack([rp[:, 1], -rp[:, 0]])                           # -d(R p)/dyaw
             r = tree.data[k[h_, p_]] - moved[h_, p_]
-            one, zero = np.ones(len(h_)), np.zeros(len(h_))                       # W = I (times w)
-            _add_terms(Hm, g, h_, dr, dr, one, zero, one, r, w)
+            wm, zero = np.full(len(h_), w), np.zeros(len(h_))                     # W = w I
+            terms.append((h_, dr, w * dr, wm, zero, wm, w * r))
+        if terms:
+            Hm, g = _normal_equations(n_a, *(np.concatenate(z) for z in zip(*terms)))
+        else:
+            Hm, g = np.zeros((n_a, 3, 3)), np.zeros((n_a, 3))
         if yaws is not None:
             gap = (y_a[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi
             near = gap[np.arange(n_a), np.abs(gap).argmin(axis=1)]
