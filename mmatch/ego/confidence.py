@@ -374,49 +374,54 @@ class _FreeSpace:
         return np.where(n_in >= 5, bad.reshape(H, N).sum(axis=1) / np.maximum(n_in, 1), 0.0)
 
 
-def _groups(pairs: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(pairs, hypothesis indices) for each distinct set of matched pairs among the hypotheses."""
-    seen: dict[bytes, list[int]] = {}
-    for h, p in enumerate(pairs):
-        seen.setdefault(np.ascontiguousarray(p, np.int64).tobytes(), []).append(h)
-    return [(pairs[idx[0]], np.asarray(idx, int)) for idx in seen.values()]
+def _padded(pairs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each hypothesis' matched pairs (a list of H (P_h, 2) arrays) as own and other vehicle
+    indices (H, P) padded with 0 to the most pairs P, and (H, P) which entries are pairs."""
+    n = np.array([len(p) for p in pairs], np.int64)
+    real = np.arange(n.max(initial=0))[None] < n[:, None]
+    i, j = np.zeros(real.shape, np.int64), np.zeros(real.shape, np.int64)
+    if real.size:
+        flat = np.concatenate(pairs)
+        i[real], j[real] = flat[:, 0], flat[:, 1]
+    return i, j, real
 
 
-def _information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: list[np.ndarray]
+def _information(ctx: PairContext, R: np.ndarray, pairs: list[np.ndarray], d: np.ndarray | None,
+                 moved: np.ndarray | None, nearest: tuple[np.ndarray, np.ndarray] | None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per hypothesis (H), each with its matched pairs: information matrix (3, 3) of (x, y, yaw),
-    residual chi^2, its degrees of freedom, and the mean matched-pair chi^2."""
-    cfg = ctx.cfg
-    H = len(R)
-    info = np.zeros((H, 3, 3))
-    chi2, dof, pair_chi2 = np.zeros(H), np.zeros(H), np.zeros(H)
-    for pg, idx in _groups(pairs):
-        if len(pg):
-            i_, c_, d_, p_ = _pair_information(ctx, R[idx], t[idx], pg)
-            info[idx] += i_
-            chi2[idx] += c_
-            dof[idx] += d_
-            pair_chi2[idx] = p_
-    _background_information(ctx, R, t, info, chi2, dof)
+    residual chi^2, its degrees of freedom, and the mean matched-pair chi^2. d: (H, Va, Vb) the
+    vehicles' Mahalanobis distances (None without vehicles in a view); moved: (H, N, 2) the
+    other background in the Ego frame, nearest: its distance (H, N) m (inf beyond bg_gate_m)
+    and index (H, N) into the own background (None without backgrounds to match)."""
+    info, chi2, pair_chi2 = _pair_information(ctx, R, pairs, d)
+    dof = np.array([2.0 * len(p) for p in pairs])
+    _background_information(ctx, R, moved, nearest, info, chi2, dof)
     return info, chi2, dof, pair_chi2
 
 
-def _pair_information(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray):
-    """The matched pairs' part of `_information` for hypotheses sharing one set of pairs."""
+def _pair_information(ctx: PairContext, R: np.ndarray, pairs: list[np.ndarray], d: np.ndarray | None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The matched pairs' part of `_information` (information, chi^2, mean pair chi^2), the
+    hypotheses with as many pairs at once."""
     A, B = ctx.A, ctx.B
     H = len(R)
-    info = np.zeros((H, 3, 3))
-    i, j = pairs[:, 0], pairs[:, 1]
-    if len(pairs):
-        dm = mahalanobis(A, B, R, t)[:, i, j]                                   # (H, P)
+    info, chi2, pair_chi2 = np.zeros((H, 3, 3)), np.zeros(H), np.zeros(H)
+    n = np.array([len(p) for p in pairs])
+    for size in np.unique(n[n > 0]):
+        rows = np.flatnonzero(n == size)
+        ij = np.stack([pairs[h] for h in rows])                                   # (G, P, 2)
+        i, j = ij[..., 0], ij[..., 1]
+        dm = d[rows[:, None], i, j]                                               # (G, P)
         b = B.centres[j]
-        Rh = R[:, None]
-        S = A.cov[i][None] + Rh @ B.cov[j][None] @ Rh.transpose(0, 1, 3, 2)     # (H, P, 2, 2)
-        Jy = np.column_stack([-b[:, 1], b[:, 0]]) @ R.transpose(0, 2, 1)        # (H, P, 2)
-        info += _information_sum(Jy, inv2(S))
-        pair_chi2 = np.mean(dm ** 2, axis=1)
-        chi2 = np.sum(np.minimum(dm ** 2, 25.0), axis=1)
-    return info, chi2, 2.0 * len(pairs), pair_chi2
+        Rg = R[rows]
+        Rh = Rg[:, None]
+        S = A.cov[i] + Rh @ B.cov[j] @ Rh.transpose(0, 1, 3, 2)                   # (G, P, 2, 2)
+        Jy = np.stack([-b[..., 1], b[..., 0]], axis=-1) @ Rg.transpose(0, 2, 1)   # (G, P, 2)
+        info[rows] = _information_sum(Jy, inv2(S))
+        pair_chi2[rows] = np.mean(dm ** 2, axis=1)
+        chi2[rows] = np.sum(np.minimum(dm ** 2, 25.0), axis=1)
+    return info, chi2, pair_chi2
 
 
 def _information_sum(Jy: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -438,16 +443,16 @@ def _cell_counts(moved: np.ndarray, ok: np.ndarray, cell_m: float) -> np.ndarray
     return np.bincount(np.unique(key[ok]) >> 42, minlength=H).astype(float)
 
 
-def _background_information(ctx: PairContext, R: np.ndarray, t: np.ndarray, info: np.ndarray,
+def _background_information(ctx: PairContext, R: np.ndarray, moved: np.ndarray | None,
+                            nearest: tuple[np.ndarray, np.ndarray] | None, info: np.ndarray,
                             chi2: np.ndarray, dof: np.ndarray) -> None:
-    """Adds the background's and the heading prior's part of `_information` in place."""
+    """Adds the background's and the heading prior's part of `_information` in place (moved,
+    nearest: as there)."""
     cfg = ctx.cfg
     H = len(R)
-    if ctx.tree_own is not None and len(ctx.bg_other) >= 3:
+    if nearest is not None:
         src = ctx.bg_other
-        moved = src @ R.transpose(0, 2, 1) + t[:, None]                          # (H, N, 2)
-        d, k = ctx.tree_own.query(moved.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
-        d, k = d.reshape(H, -1), k.reshape(H, -1)
+        d, k = nearest
         ok = np.isfinite(d)
         kk = np.where(ok, k, 0)
         n, li = ctx.normal[kk], np.where(ok, ctx.linear[kk], 0.0)
@@ -563,10 +568,16 @@ def shared_view(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray,
     not hidden behind a nearer vehicle the other detects, and (H,) how many of those the other
     missed: no vehicle of its view near (within sighting_m, or covisible_gate sigma by the two
     observations' covariances). A: own observations (Ego frame), B: the other's (CAV frame)."""
+    return _shared_view(A, B, R, t, cfg, mahalanobis(A, B, R, t) if len(A.centres) and len(B.centres) else None)
+
+
+def _shared_view(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray, cfg: ConfidenceConfig,
+                 d: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """`shared_view` given the vehicles' Mahalanobis distances d (H, Va, Vb) (None without
+    vehicles in a view)."""
     a, b = A.centres, B.centres
     H = len(R)
-    if len(a) and len(b):
-        d = mahalanobis(A, B, R, t)                                                # (H, Va, Vb)
+    if d is not None:
         found_a, found_b = d.min(axis=2) < cfg.covisible_gate, d.min(axis=1) < cfg.covisible_gate
     else:
         found_a, found_b = np.zeros((H, len(a)), bool), np.zeros((H, len(b)), bool)
@@ -604,22 +615,27 @@ def two_view_velocities(own: SharedFrame, other: SharedFrame, R: np.ndarray, pai
     whether it could be solved (P,). R: (2, 2) rotation of T_ego_cav."""
     ge, ue = radial_ground_speeds(own)
     gc, uc = radial_ground_speeds(other)
-    v, ok = _solve_two_view(ge, ue, gc, uc, np.asarray(R)[None], np.asarray(pairs, int).reshape(-1, 2), min_sin)
+    pairs = np.asarray(pairs, int).reshape(1, -1, 2)
+    v, ok = _solve_two_view(ge, ue, gc, uc, np.asarray(R, float)[None], pairs[..., 0], pairs[..., 1],
+                            np.ones(pairs.shape[:2], bool), min_sin)
     return v[0], ok[0]
 
 
-def _solve_two_view(ge, ue, gc, uc, R, pairs, min_sin: float = 0.25):
-    H, P = len(R), len(pairs)
-    v = np.full((H, P, 2), np.nan)
-    if P == 0:
-        return v, np.zeros((H, 0), bool)
-    i, j = pairs[:, 0], pairs[:, 1]
-    u1 = np.broadcast_to(ue[i], (H, P, 2))
-    u2 = np.einsum("hab,pb->hpa", R, uc[j])
+def _solve_two_view(ge: np.ndarray, ue: np.ndarray, gc: np.ndarray, uc: np.ndarray, R: np.ndarray, i: np.ndarray,
+                    j: np.ndarray, real: np.ndarray, min_sin: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """Ground velocities (H, P, 2) m/s, Ego frame, of own vehicles i (H, P) paired with other
+    vehicles j (H, P) under rotations R (H, 2, 2), from the radial ground speeds ge, gc (V,) m/s
+    along the lines of sight ue, uc (V, 2) of each view, NaN where not solved; and (H, P)
+    whether solved (never where `real` is false: padding)."""
+    v = np.full(i.shape + (2,), np.nan)
+    u1 = ue[i]                                                       # (H, P, 2)
+    ux, uy = uc[j, 0], uc[j, 1]
+    u2 = np.stack([R[:, None, 0, 0] * ux + R[:, None, 0, 1] * uy,
+                   R[:, None, 1, 0] * ux + R[:, None, 1, 1] * uy], axis=-1)
     M = np.stack([u1, u2], axis=2)                                  # (H, P, 2, 2) rows: lines of sight
     det = M[..., 0, 0] * M[..., 1, 1] - M[..., 0, 1] * M[..., 1, 0]
-    g = np.broadcast_to(np.column_stack([ge[i], gc[j]]), (H, P, 2))
-    ok = np.isfinite(det) & (np.abs(det) > min_sin) & np.isfinite(g).all(axis=2)
+    g = np.stack([ge[i], gc[j]], axis=-1)
+    ok = real & np.isfinite(det) & (np.abs(det) > min_sin) & np.isfinite(g).all(axis=2)
     if ok.any():
         v[ok] = np.linalg.solve(M[ok], g[ok][..., None])[..., 0]
     return v, ok
@@ -679,32 +695,34 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Evidence (H, len(FEATURES)), covariances (H, 3, 3) and ambiguities (H,) of hypotheses
     R (H, 2, 2), t (H, 2) with their matched pairs: one (P, 2) array for all, or a list of H,
-    vectorised over the hypotheses (the pair terms over each distinct set of pairs)."""
+    vectorised over the hypotheses (the pair information over those with as many pairs at once)."""
     cfg = ctx.cfg
     R, t = np.asarray(R, float), np.asarray(t, float)
     H = len(R)
     if isinstance(pairs, np.ndarray):
         pairs = [np.asarray(pairs, int).reshape(-1, 2)] * H
     pairs = [np.asarray(p, int).reshape(-1, 2) for p in pairs]
-    info, chi2, dof, pair_chi2 = _information(ctx, R, t, pairs)
+    d = mahalanobis(ctx.A, ctx.B, R, t) if len(ctx.A.centres) and len(ctx.B.centres) else None  # (H, Va, Vb)
+    theirs = ctx.bg_other @ R.transpose(0, 2, 1) + t[:, None] if len(ctx.bg_other) else None   # (H, N, 2)
+    nearest = None
+    if ctx.tree_own is not None and ctx.tree_other is not None:
+        dist, k = ctx.tree_own.query(theirs.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
+        nearest = dist.reshape(H, -1), k.reshape(H, -1)
+    info, chi2, dof, pair_chi2 = _information(ctx, R, pairs, d, theirs, nearest)
     cov = covariances(info, chi2, dof, inflation)
     margin, has_alt, amb = _margins(ctx, R, t, pairs, match.hypotheses if match else None)
-    n_solved, plausible, off_road = np.zeros(H), np.full(H, 0.5), np.zeros(H)
-    for pg, idx in _groups(pairs):
-        v, solved = _solve_two_view(ctx.ge, ctx.ue, ctx.gc, ctx.uc, R[idx], pg)
-        fast = np.linalg.norm(v, axis=2) < cfg.max_speed_mps
-        ns = solved.sum(axis=1)
-        n_solved[idx] = ns
-        plausible[idx] = np.where(ns > 0, (fast & solved).sum(axis=1) / np.maximum(ns, 1), 0.5)
-        off_road[idx] = _off_road_deg(ctx, R[idx], v, solved)
+    i, j, real = _padded(pairs)
+    v, solved = _solve_two_view(ctx.ge, ctx.ue, ctx.gc, ctx.uc, R, i, j, real)
+    n_solved = solved.sum(axis=1)
+    plausible = np.where(n_solved > 0, ((np.linalg.norm(v, axis=2) < cfg.max_speed_mps) & solved).sum(axis=1)
+                         / np.maximum(n_solved, 1), 0.5)
+    off_road = _off_road_deg(ctx, R, v, solved)
     overlap, back = np.zeros(H), np.zeros(H)
-    theirs = ctx.bg_other @ R.transpose(0, 2, 1) + t[:, None] if len(ctx.bg_other) else None
-    if ctx.tree_own is not None and ctx.tree_other is not None:
-        d, _ = ctx.tree_own.query(theirs.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
-        overlap = np.isfinite(d).reshape(H, -1).mean(axis=1)
+    if nearest is not None:
+        overlap = np.isfinite(nearest[0]).mean(axis=1)
         ours_in_theirs = (ctx.bg_own[None] - t[:, None]) @ R
-        d, _ = ctx.tree_other.query(ours_in_theirs.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
-        back = np.isfinite(d).reshape(H, -1).mean(axis=1)
+        dist, _ = ctx.tree_other.query(ours_in_theirs.reshape(-1, 2), distance_upper_bound=cfg.bg_gate_m)
+        back = np.isfinite(dist).reshape(H, -1).mean(axis=1)
     free = ctx.free.violation(theirs) if ctx.free is not None and theirs is not None and len(ctx.bg_other) >= 5 \
         else np.zeros(H)
     lin = np.ones(H)
@@ -715,7 +733,7 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         ev = np.linalg.eigvalsh(C)
         lin = ev[:, 0] / np.maximum(ev[:, 1], 1e-9)
     sighting, conflict = _sighting(ctx, R, t)
-    missed = shared_view(ctx.A, ctx.B, R, t, cfg)[1]
+    missed = _shared_view(ctx.A, ctx.B, R, t, cfg, d)[1]
     rm_support, rm_pair = _rmnet_evidence(ctx, R, t, pairs)
     gap = np.degrees(np.abs(_wrap(_yaw(R)[:, None] - ctx.yaws)).min(axis=1)) if ctx.yaws is not None \
         else np.full(H, 45.0)
@@ -780,13 +798,11 @@ def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarra
         model = model.for_heading(ctx.velocity_prior)
     inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
     X, cov, amb = features(ctx, R, t, pairs, match, inflation)
-    out = []
     p, choice = model.rate(X) if model is not None else (np.full(len(X), np.nan),) * 2
-    for h in range(len(X)):
-        reason = REASONS[FEATURES[int(np.argmin(model.logit_terms(X[h])))]] if model is not None else ""
-        out.append(Assessment(float(p[h]), cov[h], float(amb[h]), reason, dict(zip(FEATURES, map(float, X[h]))),
-                              float(choice[h])))
-    return out
+    reasons = [REASONS[FEATURES[k]] for k in np.argmin(model.logit_terms(X), axis=1)] if model is not None \
+        else [""] * len(X)
+    return [Assessment(ph, cov[h], ah, reasons[h], dict(zip(FEATURES, xh)), ch)
+            for h, (ph, ah, xh, ch) in enumerate(zip(p.tolist(), amb.tolist(), X.tolist(), choice.tolist()))]
 
 
 def assess(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndarray,

@@ -21,6 +21,7 @@ all candidates at once.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -69,16 +70,28 @@ class TreeEnsemble:
     def probability(self, Z: np.ndarray) -> np.ndarray:
         """(n,) probabilities of standardised features Z (n, F)."""
         Z = np.atleast_2d(np.asarray(Z, float))
-        T, n = len(self.feature), len(Z)
-        rows = np.arange(T)[:, None]
-        node = np.zeros((T, n), np.int64)
+        n, F = Z.shape
+        feature, threshold, left, right, first = self._flat
+        node = np.broadcast_to(first, (len(first), n))              # (T, n) flat node of each tree and sample
+        row = np.arange(n) * F
         for _ in range(self.depth):
-            f = self.feature[rows, node]
-            leaf = self.left[rows, node] < 0
-            go_left = Z[np.arange(n)[None, :], np.maximum(f, 0)] <= self.threshold[rows, node]
-            node = np.where(leaf, node, np.where(go_left, self.left[rows, node], self.right[rows, node]))
-        raw = self.baseline + self.value[rows, node].sum(axis=0)
+            go_left = Z.ravel()[row + feature[node]] <= threshold[node]
+            node = np.where(go_left, left[node], right[node])
+        raw = self.baseline + self.value.ravel()[node].sum(axis=0)
         return 1.0 / (1.0 + np.exp(-np.clip(raw, -40, 40)))
+
+    @cached_property
+    def _flat(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The trees' nodes in one flat array (node m of tree k at k M + m): feature (0 at a leaf),
+        threshold, left and right child (a leaf its own, so every sample takes `depth` steps), and
+        (T, 1) each tree's root."""
+        T, M = self.feature.shape
+        first = np.arange(T)[:, None] * M
+        leaf = self.left < 0
+        own = np.arange(M)[None]
+        left = np.where(leaf, own, self.left) + first
+        right = np.where(leaf, own, self.right) + first
+        return np.maximum(self.feature, 0).ravel(), self.threshold.ravel(), left.ravel(), right.ravel(), first
 
     def to_dict(self) -> dict:
         return {"feature": self.feature.tolist(), "threshold": self.threshold.tolist(),
