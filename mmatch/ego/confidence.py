@@ -58,6 +58,7 @@ from mmatch.shared import SharedFrame
 
 MODEL_PATH = Path(__file__).with_name("confidence_model.json")
 CHI2_3_95 = 7.8147                  # 95 % quantile of chi-square with 3 degrees of freedom
+_HALF_TURN = rot2(np.array(np.pi))
 
 FEATURES: tuple[str, ...] = (
     "n_pairs", "pair_chi2", "margin", "has_alternative", "sighting", "sighting_conflict",
@@ -368,8 +369,9 @@ class _FreeSpace:
         r = np.linalg.norm(flat, axis=1)
         inside = (az >= self.lo) & (az <= self.hi) & (r > 3.0)
         b = np.clip(((az - self.lo) / self.bin).astype(int), 0, len(self.far) - 1)
-        d, _ = self.tree.query(flat, distance_upper_bound=near_m)
-        bad = inside & (self.far[b] > r + margin_m) & ~np.isfinite(d)
+        bad = inside & (self.far[b] > r + margin_m)
+        d, _ = self.tree.query(flat[bad], distance_upper_bound=near_m)        # only where we see past it
+        bad[bad] = ~np.isfinite(d)
         n_in = inside.reshape(H, N).sum(axis=1)
         return np.where(n_in >= 5, bad.reshape(H, N).sum(axis=1) / np.maximum(n_in, 1), 0.0)
 
@@ -484,7 +486,7 @@ def covariances(info: np.ndarray, chi2: np.ndarray, dof: np.ndarray, inflation: 
 def _variants(R: np.ndarray, t: np.ndarray, pivot: np.ndarray, axis: np.ndarray | None,
               cfg: ConfidenceConfig) -> tuple[np.ndarray, np.ndarray]:
     """For each hypothesis: its 180 deg flip about `pivot` (H, 2) and slides along `axis`."""
-    Rf = np.einsum("hab,bc->hac", R, rot2(np.array(np.pi)))
+    Rf = np.einsum("hab,bc->hac", R, _HALF_TURN)
     tf = pivot - np.einsum("hab,hb->ha", Rf, np.einsum("hba,hb->ha", R, pivot - t))
     Rs, ts = [Rf], [tf]
     if axis is not None:
@@ -494,14 +496,16 @@ def _variants(R: np.ndarray, t: np.ndarray, pivot: np.ndarray, axis: np.ndarray 
     return np.concatenate(Rs), np.concatenate(ts)
 
 
-def _margins(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: list[np.ndarray],
+def _margins(ctx: PairContext, R: np.ndarray, t: np.ndarray, own: np.ndarray, real: np.ndarray,
              hyp: Hypotheses | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per hypothesis: margin over its best distinct alternative (-1 ... 1), whether one exists,
-    and the ambiguity (alternative score / own score)."""
+    and the ambiguity (alternative score / own score). own, real: each hypothesis' matched own
+    vehicles (H, P) and which are pairs (`_padded`); the flip turns about their mean (or t)."""
     H = len(R)
     if ctx.scorer is None:
         return np.ones(H), np.zeros(H), np.zeros(H)
-    pivot = np.array([ctx.A.centres[p[:, 0]].mean(axis=0) if len(p) else t[h] for h, p in enumerate(pairs)])
+    n = real.sum(axis=1)[:, None]
+    pivot = np.where(n > 0, np.where(real[..., None], ctx.A.centres[own], 0.0).sum(axis=1) / np.maximum(n, 1), t)
     Rv, tv = _variants(R, t, pivot, ctx.main_axis, ctx.cfg)
     PR, Pt = np.concatenate([R, Rv]), np.concatenate([t, tv])
     sc = ctx.scorer(PR, Pt)
@@ -518,12 +522,18 @@ def _margins(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: list[np.ndar
     return margin, has.astype(float), amb
 
 
-def _in_view(p: np.ndarray, cfg: ConfidenceConfig, margin_deg: float = 0.0, margin_m: float = 0.0) -> np.ndarray:
-    """Whether points p (..., 2) lie in the camera view of their radar's vehicle, at least
-    margin_deg inside its edge and margin_m short of its range."""
-    r = np.linalg.norm(p, axis=-1)
-    az = np.abs(np.arctan2(p[..., 0], p[..., 1]))
-    return (r > 4.0) & (r < cfg.camera_range_m - margin_m) & (az < np.radians(cfg.camera_half_fov_deg - margin_deg))
+def _polar(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Range (...,) m and bearing (...,) rad (from the boresight +y, positive towards +x) of
+    points p (..., 2) in their radar's frame."""
+    x, y = p[..., 0], p[..., 1]
+    return np.sqrt(x * x + y * y), np.arctan2(x, y)
+
+
+def _in_view(r: np.ndarray, az: np.ndarray, cfg: ConfidenceConfig, margin_deg: float = 0.0,
+             margin_m: float = 0.0) -> np.ndarray:
+    """Whether points at ranges r (m) and bearings az (rad, `_polar`) lie in the camera view of
+    their radar's vehicle, at least margin_deg inside its edge and margin_m short of its range."""
+    return (r > 4.0) & (r < cfg.camera_range_m - margin_m) & (np.abs(az) < np.radians(cfg.camera_half_fov_deg - margin_deg))
 
 
 def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -546,16 +556,21 @@ def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarra
     out, conflict = np.zeros(len(R)), np.zeros(len(R))
     for where, cents, g, u, v, n in ((cav_in_ego, ctx.A.centres, ctx.ge, ctx.ue, v_cav, ctx.ne),
                                      (ego_in_cav, ctx.B.centres, ctx.gc, ctx.uc, v_ego, ctx.nc)):
-        view = _in_view(where, cfg)
+        r, az = _polar(where)
+        view = _in_view(r, az, cfg)
         if not len(cents):
-            out -= view.astype(float)
+            out -= view
             continue
-        near = np.linalg.norm(where[:, None] - cents[None], axis=2) < cfg.sighting_m          # (H, V)
-        gap = np.abs(np.einsum("va,ha->hv", np.nan_to_num(u), v) - g[None])                   # NaN: unknown
-        gap[:, n < cfg.sighting_speed_points] = np.nan        # one or two returns: wheels or a false one
+        dx, dy = where[:, 0, None] - cents[:, 0], where[:, 1, None] - cents[:, 1]
+        near = np.sqrt(dx * dx + dy * dy) < cfg.sighting_m                                    # (H, V)
+        u = np.nan_to_num(u)
+        # moving otherwise than the other radar along the line of sight (an unknown speed, NaN,
+        # never is, nor a vehicle of one or two returns: wheels or a false one)
+        off = (np.abs(u[:, 0] * v[:, 0, None] + u[:, 1] * v[:, 1, None] - g) > cfg.sighting_speed_mps) \
+            & (n >= cfg.sighting_speed_points)
         seen = near.any(axis=1)
-        wrong = seen & ~(near & ~(gap > cfg.sighting_speed_mps)).any(axis=1)
-        out += np.where(view, np.where(seen, 1.0, np.where(_occluded(where, cents, cfg), 0.0, -1.0)), 0.0)
+        wrong = seen & ~(near & ~off).any(axis=1)
+        out += np.where(view, np.where(seen, 1.0, np.where(_occluded(r, az, *_polar(cents), cfg), 0.0, -1.0)), 0.0)
         conflict += view & wrong
     return out, conflict
 
@@ -586,26 +601,25 @@ def _shared_view(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray,
                               (b[None] @ R.transpose(0, 2, 1) + t[:, None], a, found_b)):
         if not pts.shape[1]:
             continue
-        inside = _in_view(pts, cfg, cfg.covisible_margin_deg, cfg.covisible_margin_m)   # (H, V)
+        r, az = _polar(pts)                                                              # (H, V)
+        inside = _in_view(r, az, cfg, cfg.covisible_margin_deg, cfg.covisible_margin_m)
         near = found
         if len(other):
-            flat = pts.reshape(-1, 2)
-            near = near | (np.linalg.norm(flat[:, None] - other[None], axis=2) < cfg.sighting_m).any(axis=1
-                                                                                                     ).reshape(inside.shape)
-            inside &= near | ~_occluded(flat, other, cfg).reshape(inside.shape)
+            dx, dy = pts[..., 0, None] - other[:, 0], pts[..., 1, None] - other[:, 1]   # (H, V, W)
+            near = near | (np.sqrt(dx * dx + dy * dy) < cfg.sighting_m).any(axis=2)
+            inside &= near | ~_occluded(r, az, *_polar(other), cfg)
         expected += inside.sum(axis=1)
         missed += (inside & ~near).sum(axis=1)
     return expected, missed
 
 
-def _occluded(where: np.ndarray, cents: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
-    """(H,) whether a detected vehicle (cents (V, 2)) nearer than `where` (H, 2) lies across the
-    line of sight to it (within occlusion_half_width_m of the ray at its own range)."""
-    r_w = np.linalg.norm(where, axis=1)                                      # (H,)
-    r_c = np.linalg.norm(cents, axis=1)                                      # (V,)
-    gap = np.abs(_wrap(np.arctan2(where[:, 0], where[:, 1])[:, None] - np.arctan2(cents[:, 0], cents[:, 1])[None]))
-    across = r_c[None] * np.sin(np.minimum(gap, np.pi / 2))
-    return ((r_c[None] < r_w[:, None] - cfg.sighting_m) & (across < cfg.occlusion_half_width_m)).any(axis=1)
+def _occluded(r: np.ndarray, az: np.ndarray, r_c: np.ndarray, az_c: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
+    """(...,) whether a detected vehicle (at ranges r_c (V,) m, bearings az_c (V,) rad) nearer than
+    the points at r, az (..., `_polar`) lies across the line of sight to them (within
+    occlusion_half_width_m of the ray at its own range)."""
+    gap = np.abs(_wrap(az[..., None] - az_c))
+    across = r_c * np.sin(np.minimum(gap, np.pi / 2))
+    return ((r_c < r[..., None] - cfg.sighting_m) & (across < cfg.occlusion_half_width_m)).any(axis=-1)
 
 
 def two_view_velocities(own: SharedFrame, other: SharedFrame, R: np.ndarray, pairs: np.ndarray,
@@ -641,14 +655,13 @@ def _solve_two_view(ge: np.ndarray, ue: np.ndarray, gc: np.ndarray, uc: np.ndarr
     return v, ok
 
 
-def _off_road_deg(ctx: PairContext, R: np.ndarray, v: np.ndarray, solved: np.ndarray) -> np.ndarray:
+def _off_road_deg(ctx: PairContext, R: np.ndarray, v: np.ndarray, moving: np.ndarray) -> np.ndarray:
     """(H,) the largest angle (deg, 0-90, direction either way) between a matched vehicle's
     two-view ground velocity v (H, P, 2) and the nearer of the two radars' own directions of
-    travel (the Ego's, and the CAV's rotated by R (H, 2, 2)), over the vehicles solved and
-    moving faster than min_speed_mps; 0 where none is. Traffic drives along the road of one of
-    the two: under a wrong pose the lines of sight are wrong and so is the solved direction."""
+    travel (the Ego's, and the CAV's rotated by R (H, 2, 2)), over the vehicles `moving` (H, P):
+    solved and faster than min_speed_mps; 0 where none is. Traffic drives along the road of one
+    of the two: under a wrong pose the lines of sight are wrong and so is the solved direction."""
     cfg = ctx.cfg
-    moving = solved & (np.linalg.norm(np.nan_to_num(v), axis=2) > cfg.min_speed_mps)
     if not moving.any():
         return np.zeros(len(R))
     heading = np.arctan2(v[..., 1], v[..., 0])                                         # (H, P)
@@ -663,7 +676,7 @@ def _off_road_deg(ctx: PairContext, R: np.ndarray, v: np.ndarray, solved: np.nda
     if not gaps:
         return np.zeros(len(R))
     gap = np.degrees(np.arcsin(np.clip(np.minimum.reduce(gaps), 0.0, 1.0)))
-    return np.where(moving, np.nan_to_num(gap), 0.0).max(axis=1)
+    return np.where(moving, gap, 0.0).max(axis=1)
 
 
 @lru_cache(maxsize=1)
@@ -710,13 +723,14 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         nearest = dist.reshape(H, -1), k.reshape(H, -1)
     info, chi2, dof, pair_chi2 = _information(ctx, R, pairs, d, theirs, nearest)
     cov = covariances(info, chi2, dof, inflation)
-    margin, has_alt, amb = _margins(ctx, R, t, pairs, match.hypotheses if match else None)
     i, j, real = _padded(pairs)
+    margin, has_alt, amb = _margins(ctx, R, t, i, real, match.hypotheses if match else None)
     v, solved = _solve_two_view(ctx.ge, ctx.ue, ctx.gc, ctx.uc, R, i, j, real)
     n_solved = solved.sum(axis=1)
-    plausible = np.where(n_solved > 0, ((np.linalg.norm(v, axis=2) < cfg.max_speed_mps) & solved).sum(axis=1)
-                         / np.maximum(n_solved, 1), 0.5)
-    off_road = _off_road_deg(ctx, R, v, solved)
+    speed = np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1])                  # (H, P) m/s, NaN: unsolved
+    plausible = np.where(n_solved > 0, ((speed < cfg.max_speed_mps) & solved).sum(axis=1) / np.maximum(n_solved, 1),
+                         0.5)
+    off_road = _off_road_deg(ctx, R, v, solved & (speed > cfg.min_speed_mps))
     overlap, back = np.zeros(H), np.zeros(H)
     if nearest is not None:
         overlap = np.isfinite(nearest[0]).mean(axis=1)

@@ -45,9 +45,15 @@ def choice_features(Z: np.ndarray, p: np.ndarray) -> np.ndarray:
     n = len(Z)
     if n == 0:
         return np.zeros((0, 2 * Z.shape[1] + 4))
-    rank = np.empty(n)
-    rank[np.argsort(-p, kind="stable")] = np.arange(n)
-    return np.column_stack([Z, Z - Z.max(axis=0), rank, p - p.max(), np.full(n, float(n)), p])
+    F = Z.shape[1]
+    out = np.empty((n, 2 * F + 4))
+    out[:, :F] = Z
+    out[:, F:2 * F] = Z - Z.max(axis=0)
+    out[np.argsort(-p, kind="stable"), 2 * F] = np.arange(n)
+    out[:, 2 * F + 1] = p - p.max()
+    out[:, 2 * F + 2] = n
+    out[:, 2 * F + 3] = p
+    return out
 
 
 @dataclass(frozen=True)
@@ -71,8 +77,7 @@ class TreeEnsemble:
         """(n,) probabilities of standardised features Z (n, F)."""
         Z = np.atleast_2d(np.asarray(Z, float))
         n, F = Z.shape
-        feature, threshold, left, right, first = self._flat
-        node = np.broadcast_to(first, (len(first), n))              # (T, n) flat node of each tree and sample
+        feature, threshold, left, right, node = self._flat           # node: (T, 1) the roots, then (T, n)
         row = np.arange(n) * F
         for _ in range(self.depth):
             go_left = Z.ravel()[row + feature[node]] <= threshold[node]
