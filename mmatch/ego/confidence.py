@@ -292,15 +292,17 @@ def inside_ellipse(error: np.ndarray, cov: np.ndarray, level: float = CHI2_3_95)
         return False
 
 
-def _normals(pts: np.ndarray, tree: cKDTree, k: int = 16, radius_m: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (N, 2) of a 2-D point set's local lines and their linearity (N,) in 0-1.
+def _normals(pts: np.ndarray, tree: cKDTree, which: np.ndarray, k: int = 16, radius_m: float = 4.0
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (M, 2) of a 2-D point set's (pts (N, 2), its k-d tree `tree`) local lines
+    at its points `which` (M,), and their linearity (M,) in 0-1.
 
     Local means the neighbours within radius_m (up to k): wide enough that angle noise
     across a guardrail (0.5-1 m at 40 m) does not hide that it is a line.
     """
     kk = min(k, len(pts))
-    d, idx = tree.query(pts, k=kk, distance_upper_bound=radius_m)
-    d, idx = np.asarray(d).reshape(len(pts), kk), np.asarray(idx).reshape(len(pts), kk)
+    d, idx = tree.query(pts[which], k=kk, distance_upper_bound=radius_m)
+    d, idx = np.asarray(d).reshape(len(which), kk), np.asarray(idx).reshape(len(which), kk)
     ok = np.isfinite(d)
     nb = pts[np.where(ok, idx, 0)]
     cnt = np.maximum(ok.sum(axis=1), 1)[:, None]
@@ -333,8 +335,6 @@ class PairContext:
         self.bg_other = other.background[:, :2].astype(float)
         self.tree_own = cKDTree(self.bg_own) if len(self.bg_own) >= 3 else None
         self.tree_other = cKDTree(self.bg_other) if len(self.bg_other) >= 3 else None
-        if self.tree_own is not None:
-            self.normal, self.linear = _normals(self.bg_own, self.tree_own)
         self.yaws = heading_yaws(own, other)
         self.velocity_prior = velocity_heading_yaws(own, other) is not None
         self.ge, self.ue = radial_ground_speeds(own)
@@ -457,7 +457,13 @@ def _background_information(ctx: PairContext, R: np.ndarray, moved: np.ndarray |
         d, k = nearest
         ok = np.isfinite(d)
         kk = np.where(ok, k, 0)
-        n, li = ctx.normal[kk], np.where(ok, ctx.linear[kk], 0.0)
+        matched = np.zeros(len(ctx.bg_own), bool)
+        matched[kk[ok]] = True
+        matched = np.flatnonzero(matched)             # only the own points matched need their local lines
+        normal, linear = np.zeros((len(ctx.bg_own), 2)), np.zeros(len(ctx.bg_own))
+        if len(matched):
+            normal[matched], linear[matched] = _normals(ctx.bg_own, ctx.tree_own, matched)
+        n, li = normal[kk], np.where(ok, linear[kk], 0.0)
         line = (li >= 0.5)[..., None, None]
         P = np.where(line, np.einsum("hni,hnj->hnij", n, n), (1 - li)[..., None, None] * np.eye(2))
         P = P * ok[..., None, None]
