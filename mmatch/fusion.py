@@ -11,7 +11,8 @@ import numpy as np
 
 from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres,
                              velocity_heading_yaws, without_heading_prior)
-from mmatch.ego.confidence import ConfidenceConfig, PairContext, assess_many, shared_view, threshold
+from mmatch.ego.confidence import (ConfidenceConfig, PairContext, assess_many, shared_view, threshold,
+                                   vehicle_distances)
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import near_transforms, rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
@@ -110,6 +111,9 @@ class Fuser:
         # network when it has one (its scores are computed once per fusion), else the packaged one
         self._pair_scorer = getattr(self.matcher, "rmnet", None) or \
             (self.matcher if hasattr(self.matcher, "probabilities") else None)
+        # ... and the pairs that network assigns under each candidate are evidence too: with a
+        # matcher whose pairs under a transform are that assignment, the winner's are at hand
+        self._pairs_by_rmnet = self._pairs_from_transform and bool(getattr(self.matcher, "pairs_by_rmnet", False))
         self._threshold = threshold(config.confidence)
         self._threshold_no_heading = threshold(config.confidence, heading=False)
         self._extra = config.extra_hypotheses if config.extra_hypotheses is not None else \
@@ -304,19 +308,24 @@ class Fuser:
         else:
             R, t = aligned.T[None, :2, :2], aligned.T[None, :2, 3]
         dz = aligned.T[2, 3]
-        pairs = [np.asarray(match.pairs, np.int32).reshape(-1, 2)] * len(R)
+        n_aligned = len(R)
+        pairs = [np.asarray(match.pairs, np.int32).reshape(-1, 2)] * n_aligned
         extra = _other_hypotheses(match, R, t, self._extra, self._per_direction)
-        for Rh, th in extra:
-            pairs.append(self._scorer.pairs_under(own, other, Rh, th, scale, (ctx.A, ctx.B)))
         if extra:
             R = np.concatenate([R, np.stack([r for r, _ in extra])])
             t = np.concatenate([t, np.stack([x for _, x in extra])])
-        rated = assess_many(ctx, R, t, pairs, match)
+        d = vehicle_distances(ctx, R, t)                  # one table for the pairs and the evidence
+        for h in range(n_aligned, len(R)):
+            pairs.append(self._scorer.pairs_under(own, other, R[h], t[h], scale, (ctx.A, ctx.B),
+                                                  d[h] if d is not None else None))
+        rated = assess_many(ctx, R, t, pairs, match, d)
         Ts = [se2_to_matrix(R[h], t[h], dz) for h in range(len(R))]
         p = np.array([x.confidence if np.isnan(x.choice) else x.choice for x in rated])   # the chooser's score
         k = int(np.nanargmax(p)) if np.isfinite(p).any() else 0
         chosen = pairs[k]
-        if self._pairs_from_transform:
+        if self._pairs_by_rmnet and rated[k].rmnet_pairs is not None:
+            chosen = rated[k].rmnet_pairs
+        elif self._pairs_from_transform:
             chosen = self.matcher.pairs_under(own, other, R[k], t[k], scale, (ctx.A, ctx.B))
         return Ts[k], rated[k], list(zip(Ts, rated)), chosen
 

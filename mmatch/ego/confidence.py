@@ -51,6 +51,7 @@ from scipy.spatial import cKDTree
 from mmatch.ego.base import (Hypotheses, MatchResult, heading_yaws, point_counts, radial_ground_speeds,
                              velocity_heading_yaws)
 from mmatch.ego.confidence_trees import TreeEnsemble, choice_features
+from mmatch.ego.match.consensus import background_tree
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.rigid import inv2, rot2
 from mmatch.errors import ConfigError
@@ -151,7 +152,8 @@ class Assessment:
     ambiguity: the best distinct alternative's score relative to the estimate's (0 none,
     1 as good, > 1 better); reason: what weighs most against it; features: the evidence;
     choice: the score that chooses among one frame pair's candidates (ProbabilityModel.rate's second;
-    NaN: the confidence chooses)."""
+    NaN: the confidence chooses); rmnet_pairs: (P, 2) int32 the (own, other) vehicle pairs RM-net
+    assigns under the estimate (those rmnet_support sums), None where the network scored nothing."""
 
     confidence: float
     covariance: np.ndarray
@@ -159,6 +161,7 @@ class Assessment:
     reason: str
     features: dict[str, float]
     choice: float = float("nan")
+    rmnet_pairs: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -333,8 +336,7 @@ class PairContext:
         self.P = self.pair_scorer.probabilities(own, other)[0]
         self.bg_own = own.background[:, :2].astype(float)
         self.bg_other = other.background[:, :2].astype(float)
-        self.tree_own = cKDTree(self.bg_own) if len(self.bg_own) >= 3 else None
-        self.tree_other = cKDTree(self.bg_other) if len(self.bg_other) >= 3 else None
+        self.tree_own, self.tree_other = background_tree(own), background_tree(other)
         self.yaws = heading_yaws(own, other)
         self.velocity_prior = velocity_heading_yaws(own, other) is not None
         self.ge, self.ue = radial_ground_speeds(own)
@@ -692,36 +694,52 @@ def default_pair_scorer():
     return RMNetMatcher()
 
 
-def _rmnet_evidence(ctx: PairContext, R: np.ndarray, t: np.ndarray,
-                    pairs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """(H,) summed RM-net score of the pairs RM-net assigns under each hypothesis, and (H,) the
-    mean score of each hypothesis' own pairs (0 without pairs; all 0 below two vehicles a view)."""
+def _rmnet_evidence(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: list[np.ndarray],
+                    d: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, list[np.ndarray] | None]:
+    """(H,) summed RM-net score of the pairs RM-net assigns under each hypothesis, (H,) the
+    mean score of each hypothesis' own pairs (0 without pairs; all 0 below two vehicles a view),
+    and those assigned pairs (H (P, 2) arrays; None when the network scored nothing). d: the
+    vehicles' Mahalanobis distances (H, Va, Vb) (None without vehicles in a view)."""
     H = len(R)
     support, own_score = np.zeros(H), np.zeros(H)
     P = ctx.P
     if P.size == 0 or not P.any():
-        return support, own_score
-    assigned = ctx.pair_scorer.pairs_under_many(ctx.own, ctx.other, R, t, ctx.descriptor_scale, (ctx.A, ctx.B))
+        return support, own_score, None
+    assigned = ctx.pair_scorer.pairs_under_many(ctx.own, ctx.other, R, t, ctx.descriptor_scale, (ctx.A, ctx.B), d)
     for h, got in enumerate(assigned):
         support[h] = P[got[:, 0], got[:, 1]].sum() if len(got) else 0.0
         if len(pairs[h]):
             own_score[h] = P[pairs[h][:, 0], pairs[h][:, 1]].mean()
-    return support, own_score
+    return support, own_score, assigned
+
+
+def vehicle_distances(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+    """(H, Va, Vb) Mahalanobis distances of the frame pair's vehicles (its observations) under
+    hypotheses R (H, 2, 2), t (H, 2); None without vehicles in a view."""
+    return mahalanobis(ctx.A, ctx.B, R, t) if len(ctx.A.centres) and len(ctx.B.centres) else None
 
 
 def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
-             match: MatchResult | None = None, inflation: float = 1.0
+             match: MatchResult | None = None, inflation: float = 1.0, distances: np.ndarray | None = None
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Evidence (H, len(FEATURES)), covariances (H, 3, 3) and ambiguities (H,) of hypotheses
     R (H, 2, 2), t (H, 2) with their matched pairs: one (P, 2) array for all, or a list of H,
-    vectorised over the hypotheses (the pair information over those with as many pairs at once)."""
+    vectorised over the hypotheses (the pair information over those with as many pairs at once).
+    distances: `vehicle_distances(ctx, R, t)` when at hand."""
+    return _features(ctx, R, t, pairs, match, inflation, distances)[:3]
+
+
+def _features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
+              match: MatchResult | None, inflation: float, distances: np.ndarray | None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray] | None]:
+    """`features`, and the pairs RM-net assigns under each hypothesis (`_rmnet_evidence`)."""
     cfg = ctx.cfg
     R, t = np.asarray(R, float), np.asarray(t, float)
     H = len(R)
     if isinstance(pairs, np.ndarray):
         pairs = [np.asarray(pairs, int).reshape(-1, 2)] * H
     pairs = [np.asarray(p, int).reshape(-1, 2) for p in pairs]
-    d = mahalanobis(ctx.A, ctx.B, R, t) if len(ctx.A.centres) and len(ctx.B.centres) else None  # (H, Va, Vb)
+    d = vehicle_distances(ctx, R, t) if distances is None else distances                     # (H, Va, Vb)
     theirs = ctx.bg_other @ R.transpose(0, 2, 1) + t[:, None] if len(ctx.bg_other) else None   # (H, N, 2)
     nearest = None
     if ctx.tree_own is not None and ctx.tree_other is not None:
@@ -754,7 +772,7 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         lin = ev[:, 0] / np.maximum(ev[:, 1], 1e-9)
     sighting, conflict = _sighting(ctx, R, t)
     missed = _shared_view(ctx.A, ctx.B, R, t, cfg, d)[1]
-    rm_support, rm_pair = _rmnet_evidence(ctx, R, t, pairs)
+    rm_support, rm_pair, assigned = _rmnet_evidence(ctx, R, t, pairs, d)
     gap = np.degrees(np.abs(_wrap(_yaw(R)[:, None] - ctx.yaws)).min(axis=1)) if ctx.yaws is not None \
         else np.full(H, 45.0)
     pos = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 1e-9) / max(inflation, 1e-9))
@@ -781,7 +799,7 @@ def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray |
         "rmnet_support": np.minimum(rm_support, 8.0),
         "rmnet_pair_score": rm_pair,
     }
-    return np.column_stack([cols[k] for k in FEATURES]), cov, amb
+    return np.column_stack([cols[k] for k in FEATURES]), cov, amb, assigned
 
 
 def evidence(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndarray,
@@ -807,21 +825,23 @@ def threshold(cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True) 
 
 
 def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
-                match: MatchResult | None = None) -> list[Assessment]:
+                match: MatchResult | None = None, distances: np.ndarray | None = None) -> list[Assessment]:
     """Confidence, covariance, ambiguity and the reason against each hypothesis (see the module doc).
 
-    Without a fitted model the probability is NaN (nothing is refused).
+    Without a fitted model the probability is NaN (nothing is refused). distances:
+    `vehicle_distances(ctx, R, t)` when at hand.
     """
     cfg = ctx.cfg
     model = load_model(cfg.model_path)
     if model is not None:
         model = model.for_heading(ctx.velocity_prior)
     inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
-    X, cov, amb = features(ctx, R, t, pairs, match, inflation)
+    X, cov, amb, assigned = _features(ctx, R, t, pairs, match, inflation, distances)
     p, choice = model.rate(X) if model is not None else (np.full(len(X), np.nan),) * 2
     reasons = [REASONS[FEATURES[k]] for k in np.argmin(model.logit_terms(X), axis=1)] if model is not None \
         else [""] * len(X)
-    return [Assessment(ph, cov[h], ah, reasons[h], dict(zip(FEATURES, xh)), ch)
+    return [Assessment(ph, cov[h], ah, reasons[h], dict(zip(FEATURES, xh)), ch,
+                       assigned[h] if assigned is not None else None)
             for h, (ph, ah, xh, ch) in enumerate(zip(p.tolist(), amb.tolist(), X.tolist(), choice.tolist()))]
 
 

@@ -81,3 +81,31 @@ def test_dense_frames_take_rmnets_search():
     got, want = m(own, other, ctx), consensus(own, other, ctx)
     np.testing.assert_array_equal(got.pairs, want.pairs)
     np.testing.assert_allclose(got.T_hint, want.T_hint)
+
+
+def test_each_candidates_rmnet_pairs_are_the_matchers_pairs_under_it(wide_hard):
+    """RM-net's assignment under every candidate is confidence evidence (rmnet_pairs); the arbiter
+    publishes the winner's. They are the matcher's `pairs_under` each candidate's transform (one
+    Mahalanobis table for all the candidates, one assignment each, gives the same pairs)."""
+    from mmatch.ego.observations import observations_shared, observe
+    from mmatch.fusion import Fuser, FusionConfig
+
+    fuser = Fuser(FusionConfig())
+    matcher = get_matcher(DEFAULT_MATCHER)
+    seen = fuser.config.confidence.observation
+    compared = 0
+    for f in wide_hard[:20]:
+        own, other, _, _ = prepare_scene(load_scene(f))
+        res = fuser.fuse(own, other)
+        T = res.T_ego_cav if res.T_ego_cav is not None else res.refused_T
+        if T is None:
+            continue
+        with observations_shared():
+            observed = (observe(own, seen), observe(other, seen))
+            np.testing.assert_array_equal(res.pairs, matcher.pairs_under(own, other, T[:2, :2], T[:2, 3], 1.0, observed))
+            for Tc, a in res.candidates:
+                if a.rmnet_pairs is not None:
+                    compared += 1
+                    np.testing.assert_array_equal(
+                        a.rmnet_pairs, matcher.pairs_under(own, other, Tc[:2, :2], Tc[:2, 3], 1.0, observed))
+    assert compared >= 20

@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 
 from mmatch.ego.base import Hypotheses, MatchContext, MatchResult, heading_yaws, road_speed_consistency
 from mmatch.ego.descriptor_scale import scaled_distance
+from mmatch.ego.memo import memo
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import distinct_best, se2_to_matrix
@@ -151,7 +152,7 @@ class ConsensusMatcher:
             top = np.concatenate([top, distinct_best(R, t, order[sighted[order]], cfg.sighting_refine,
                                                      cfg.distinct_m, cfg.distinct_deg)])
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
-        tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
+        tree = background_tree(own)
         rcfg = cfg.tracking_refine() if ctx.prior_only and prior is not None else cfg.refine
         R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree)
         Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
@@ -170,16 +171,18 @@ class ConsensusMatcher:
                            hypotheses=Hypotheses(Rr, tr, total))
 
     def pairs_under(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
-                    descriptor_scale: float = 1.0, observed: tuple | None = None) -> np.ndarray:
+                    descriptor_scale: float = 1.0, observed: tuple | None = None,
+                    dist: np.ndarray | None = None) -> np.ndarray:
         """(P, 2) the one-to-one pairs this matcher assigns under one transform R (2, 2), t (2,).
 
-        observed: the two frames' Observations when already at hand (same observation model)."""
+        observed: the two frames' Observations when already at hand (same observation model);
+        dist: their (Va, Vb) Mahalanobis distances under R, t when at hand."""
         cfg = self.cfg
         A, B = observed if observed is not None else (observe(own, cfg.observation), observe(other, cfg.observation))
         if len(A.centres) == 0 or len(B.centres) == 0:
             return np.zeros((0, 2), np.int32)
         D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
-        pairs, _ = _assign(A, B, D, R, t, cfg, None, _scores(own, cfg), _scores(other, cfg))
+        pairs, _ = _assign(A, B, D, R, t, cfg, None, _scores(own, cfg), _scores(other, cfg), dist)
         return pairs
 
     def score(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
@@ -193,7 +196,7 @@ class ConsensusMatcher:
         cfg = self.cfg
         A, B = observe(own, cfg.observation), observe(other, cfg.observation)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
-        tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
+        tree = background_tree(own)
         alike_of = None
         if len(A.centres) and len(B.centres):
             D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
@@ -206,6 +209,13 @@ class ConsensusMatcher:
             bg = cfg.background_weight * _background_scores(bg_own, bg_other, R, t, cfg, tree)
             return bg if alike_of is None else _vehicle_scores(A, B, alike_of(R), R, t, cfg) + bg
         return of
+
+
+def background_tree(frame: SharedFrame) -> cKDTree | None:
+    """A k-d tree of a frame's background points (x, y, its radar frame, m); None below three
+    points. Once per frame inside a fusion (ego/memo.py)."""
+    bg = frame.background[:, :2]
+    return memo("background_tree", (frame,), lambda: cKDTree(bg) if len(bg) >= 3 else None)
 
 
 def _prior_agreement(R: np.ndarray, t: np.ndarray, prior: np.ndarray, cfg: ConsensusConfig) -> np.ndarray:
@@ -224,12 +234,17 @@ def _yaw_gap(R: np.ndarray, yaws: np.ndarray, per_candidate: bool = False) -> np
 
 def _scores(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
     """(V,) detection scores lifted so that the frame's median is at least `typical_score`:
-    a detector calibrated lower overall keeps its ranking without losing every vehicle."""
+    a detector calibrated lower overall keeps its ranking without losing every vehicle.
+    Once per frame inside a fusion (ego/memo.py)."""
+    return memo("detection_scores", (frame,), lambda: _lifted_scores(frame, cfg.typical_score), cfg.typical_score)
+
+
+def _lifted_scores(frame: SharedFrame, typical: float) -> np.ndarray:
     sc = frame.vehicle_boxes[:, 4].astype(float)
     if len(sc) == 0:
         return sc
     med = float(np.median(sc))
-    return sc * (cfg.typical_score / med if 0 < med < cfg.typical_score else 1.0)
+    return sc * (typical / med if 0 < med < typical else 1.0)
 
 
 def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
@@ -382,10 +397,9 @@ def _background_scores(bg_own, bg_other, R, t, cfg, tree=None):
     """(H,) share of the other view's background (N, 2) landing within the gate of the own."""
     if len(bg_own) < 3 or len(bg_other) < 3:
         return np.zeros(len(R))
-    rng = np.random.default_rng(0)
     src = bg_other
     if len(src) > cfg.background_points:
-        src = src[rng.choice(len(src), cfg.background_points, replace=False)]
+        src = src[np.random.default_rng(0).choice(len(src), cfg.background_points, replace=False)]
     tree = tree or cKDTree(bg_own)
     moved = src @ R.transpose(0, 2, 1) + t[:, None]
     d, _ = tree.query(moved.reshape(-1, 2), distance_upper_bound=cfg.background_gate_m)
@@ -399,12 +413,14 @@ def _background_scores(bg_own, bg_other, R, t, cfg, tree=None):
     return (hit * seen).sum(axis=1) / np.maximum(seen.sum(axis=1), cfg.background_min_seen)
 
 
-def _assign(A: Observations, B: Observations, D, R, t, cfg, veto=None, score_a=None, score_b=None):
+def _assign(A: Observations, B: Observations, D, R, t, cfg, veto=None, score_a=None, score_b=None, dist=None):
     """One-to-one pairs under a transform: Hungarian on Mahalanobis distance + appearance, gated (and vetoed).
 
     A detection scoring (normalised, see `_scores`) below assign_min_score is never matched.
+    dist: the (Va, Vb) distances under R, t when at hand.
     """
-    dist = mahalanobis(A, B, R[None], t[None])[0]
+    if dist is None:
+        dist = mahalanobis(A, B, R[None], t[None])[0]
     cost = dist / cfg.assign_gate_sigma + cfg.desc_weight * D
     big = 1e6
     allowed = (dist < cfg.assign_gate_sigma) & (D < cfg.desc_gate)

@@ -40,6 +40,7 @@ from mmatch.shared import SharedFrame
 class ConsensusRMNetMatcher(ConsensusMatcher):
     name = "consensus-rmnet"
     pairs_from_transform = True     # the fused pairs are RM-net's under the published transform
+    pairs_by_rmnet = True           # pairs_under is its RM-net's assignment (what the confidence evidence makes)
 
     def __init__(self, config: ConsensusConfig = ConsensusConfig(), rmnet: RMNetConfig = RMNetConfig(),
                  dense_pairs: int = 225) -> None:

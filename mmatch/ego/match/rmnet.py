@@ -36,7 +36,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.spatial import cKDTree
 
 from mmatch.ego.base import Hypotheses, MatchContext, MatchResult, heading_yaws, road_speed_consistency
 from mmatch.ego.descriptor_scale import scaled_distance
@@ -84,6 +83,7 @@ class RMNetConfig:
 class RMNetMatcher:
     name = "rmnet"
     pairs_from_transform = True     # the fused pairs are those the published transform implies (fusion.py)
+    pairs_by_rmnet = True           # pairs_under is its own assignment, the one the confidence evidence makes
 
     def __init__(self, config: RMNetConfig = RMNetConfig(), session: RMNetSession | None = None) -> None:
         self.cfg = config
@@ -110,9 +110,11 @@ class RMNetMatcher:
                                      observed)[0]
 
     def pairs_under_many(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
-                         descriptor_scale: float = 1.0, observed: tuple | None = None) -> list[np.ndarray]:
+                         descriptor_scale: float = 1.0, observed: tuple | None = None,
+                         dist: np.ndarray | None = None) -> list[np.ndarray]:
         """`pairs_under` for H transforms R (H, 2, 2), t (H, 2) at once: H (P, 2) arrays (one
-        distance computation for all, one assignment each)."""
+        distance computation for all, one assignment each). dist: the (H, Va, Vb) Mahalanobis
+        distances of the observed vehicles under R, t when at hand."""
         P, A, B = self.probabilities(own, other)
         if observed is not None:
             A, B = observed
@@ -120,7 +122,8 @@ class RMNetMatcher:
             return [np.zeros((0, 2), np.int32) for _ in range(len(R))]
         ccfg = self.cfg.consensus
         D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
-        dist = mahalanobis(A, B, np.asarray(R, float), np.asarray(t, float))
+        if dist is None:
+            dist = mahalanobis(A, B, np.asarray(R, float), np.asarray(t, float))
         sa, sb = cs._scores(own, ccfg), cs._scores(other, ccfg)
         return [assign(A, B, P, R[h], t[h], self.cfg, None, sa, sb, D, dist[h])[0] for h in range(len(R))]
 
@@ -179,7 +182,7 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
             max(2, min(cfg.refine_hypotheses, cfg.refine_pair_budget // max(P.size, 1)))
         top = cs._distinct_best(R, t, coarse, ccfg, n_refine)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
-        tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
+        tree = cs.background_tree(own)
         rcfg = ccfg.tracking_refine() if ctx.prior_only and prior is not None else ccfg.refine
         allowed = W >= cfg.min_prob if candidates is None else None
         R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree, allowed)
