@@ -362,38 +362,37 @@ def _other_hypotheses(match: MatchResult, R: np.ndarray, t: np.ndarray, n: int, 
     if hyp is None or len(hyp.R) == 0 or (n <= 0 and per_direction <= 0) or len(R) == 0:
         return []
     yaw = np.arctan2(hyp.R[:, 1, 0], hyp.R[:, 0, 0])
-    taken_yaw, taken_t = list(np.arctan2(R[:, 1, 0], R[:, 0, 0])), list(t)
-    out: list[tuple[np.ndarray, np.ndarray]] = []
+    candidate_yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    # which hypotheses lie near a candidate, and near each other (the greedy choice reads these)
+    near_candidate = near_transforms(yaw, hyp.t, candidate_yaw, t, distinct_m, distinct_deg).any(axis=1).tolist()
+    near = near_transforms(yaw, hyp.t, yaw, hyp.t, distinct_m, distinct_deg).tolist()
+    taken: list[int] = []
 
     def take_if_distinct(h: int) -> bool:
-        if near_transforms(yaw[[h]], hyp.t[[h]], np.asarray(taken_yaw), np.asarray(taken_t), distinct_m,
-                           distinct_deg).any():
+        if near_candidate[h] or any(near[h][g] for g in taken):
             return False
-        out.append((hyp.R[h], hyp.t[h]))
-        taken_yaw.append(yaw[h])
-        taken_t.append(hyp.t[h])
+        taken.append(h)
         return True
 
     order = np.argsort(-np.asarray(hyp.score), kind="stable")
-    taken_h: list[int] = []
     for h in order:
-        if len(taken_h) >= n:
+        if len(taken) >= n:
             break
-        if take_if_distinct(int(h)):
-            taken_h.append(int(h))
+        take_if_distinct(int(h))
     if per_direction > 0:
-        turn = (yaw - taken_yaw[0] + np.pi) % (2 * np.pi) - np.pi
+        turn = (yaw - candidate_yaw[0] + np.pi) % (2 * np.pi) - np.pi
         quarter = np.round(turn / (np.pi / 2)).astype(int) % 4
         slid = (quarter == 0) & (np.linalg.norm(hyp.t - t[0], axis=1) > slide_m)
         score = np.asarray(hyp.score, np.float64)
         strong = score >= min_share * max(float(np.max(score)), 0.0)
+        best = list(taken)
         for members in (slid, quarter == 1, quarter == 2, quarter == 3):
-            kept = int(members[taken_h].sum())                      # the n best may hold some already
+            kept = int(members[best].sum())                         # the n best may hold some already
             for h in order[(members & strong)[order]]:
                 if kept >= per_direction:
                     break
                 kept += take_if_distinct(int(h))
-    return out
+    return [(hyp.R[h], hyp.t[h]) for h in taken]
 
 
 def pairs_under(own: SharedFrame, other: SharedFrame, T: np.ndarray, gate_m: float = 2.5) -> np.ndarray:

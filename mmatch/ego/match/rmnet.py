@@ -124,8 +124,8 @@ class RMNetMatcher:
         D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
         if dist is None:
             dist = mahalanobis(A, B, np.asarray(R, float), np.asarray(t, float))
-        sa, sb = cs._scores(own, ccfg), cs._scores(other, ccfg)
-        return [assign(A, B, P, R[h], t[h], self.cfg, None, sa, sb, D, dist[h])[0] for h in range(len(R))]
+        gated = _gated_cost(P, dist, self.cfg, None, cs._scores(own, ccfg), cs._scores(other, ccfg), D)
+        return [_one_to_one(g, P)[0] for g in gated]
 
     def __call__(self, own: SharedFrame, other: SharedFrame, ctx: MatchContext) -> MatchResult:
         t0 = time.thread_time()
@@ -322,23 +322,36 @@ def assign(A: Observations, B: Observations, P: np.ndarray, R: np.ndarray, t: np
     (+ descriptor distance D), gated. dist: the (Va, Vb) distances under R, t when at hand."""
     if dist is None:
         dist = mahalanobis(A, B, R[None], t[None])[0]
+    return _one_to_one(_gated_cost(P, dist, cfg, veto, score_a, score_b, D), P)
+
+
+_NOT_ALLOWED = 1e6      # the cost of a pair `assign` may not make
+
+
+def _gated_cost(P: np.ndarray, dist: np.ndarray, cfg: RMNetConfig, veto: np.ndarray | None,
+                score_a: np.ndarray | None, score_b: np.ndarray | None, D: np.ndarray | None) -> np.ndarray:
+    """`assign`'s cost of each pair, _NOT_ALLOWED where a gate refuses it: (..., Va, Vb) of the
+    distances dist (..., Va, Vb) under one transform or each of several."""
     cost = dist / cfg.assign_gate_sigma + cfg.assign_prob_weight * (1 - P)
     if D is not None and cfg.assign_desc_weight > 0:
         cost = cost + cfg.assign_desc_weight * D
     ok_score = P >= cfg.assign_min_prob
     if D is not None and cfg.assign_alike_desc > 0:
         ok_score |= D < cfg.assign_alike_desc
-    allowed = (dist < cfg.assign_gate_sigma) & ok_score
     if score_a is not None and score_b is not None:
-        allowed &= np.minimum(score_a[:, None], score_b[None, :]) >= cfg.consensus.assign_min_score
+        ok_score &= np.minimum(score_a[:, None], score_b[None, :]) >= cfg.consensus.assign_min_score
     if veto is not None:
-        allowed &= ~veto
-    big = 1e6
-    gated = np.where(allowed, cost, big)
+        ok_score &= ~veto
+    return np.where((dist < cfg.assign_gate_sigma) & ok_score, cost, _NOT_ALLOWED)
+
+
+def _one_to_one(gated: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The Hungarian assignment on a `_gated_cost` (Va, Vb) without its refused pairs: (P, 2) int32
+    pairs and their network scores."""
     r, c = linear_sum_assignment(gated)
-    ok = gated[r, c] < big
-    pairs = np.column_stack([r[ok], c[ok]]).astype(np.int32).reshape(-1, 2)
-    return pairs, P[r[ok], c[ok]]
+    ok = gated[r, c] < _NOT_ALLOWED
+    r, c = r[ok], c[ok]
+    return np.stack([r, c], axis=1).astype(np.int32), P[r, c]
 
 
 def mutual_pairs(score: np.ndarray, threshold: float, higher_is_better: bool = True) -> np.ndarray:
