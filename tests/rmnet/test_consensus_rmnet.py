@@ -109,3 +109,31 @@ def test_each_candidates_rmnet_pairs_are_the_matchers_pairs_under_it(wide_hard):
                     np.testing.assert_array_equal(
                         a.rmnet_pairs, matcher.pairs_under(own, other, Tc[:2, :2], Tc[:2, 3], 1.0, observed))
     assert compared >= 20
+
+
+def test_pairs_under_a_given_distance_table_are_the_pairs_computed_alone(wide_hard):
+    """The arbiter hands the matchers one Mahalanobis table for all its candidates: the pairs under
+    each transform are those a matcher finds computing the distances itself, one transform at a time."""
+    from mmatch.ego.match.consensus import ConsensusMatcher
+    from mmatch.ego.observations import mahalanobis, observe
+    from mmatch.ego.rigid import rot2
+
+    rmnet, consensus = get_matcher("rmnet"), ConsensusMatcher()
+    found = 0
+    for f in wide_hard[:10]:
+        scene = load_scene(f)
+        own, other, _, _ = prepare_scene(scene)
+        observed = (observe(own), observe(other))
+        if not len(observed[0].centres) or not len(observed[1].centres):
+            continue
+        T = scene.gt_T_ego_cav
+        R = T[:2, :2] @ rot2(np.radians([0.0, 2.0, -4.0, 90.0]))
+        t = T[:2, 3] + np.array([[0.0, 0.0], [1.0, -0.5], [0.0, 3.0], [0.0, 0.0]])
+        dist = mahalanobis(*observed, R, t)
+        many = rmnet.pairs_under_many(own, other, R, t, 1.0, observed, dist)
+        for h in range(len(R)):
+            np.testing.assert_array_equal(many[h], rmnet.pairs_under(own, other, R[h], t[h], 1.0, observed))
+            alone = consensus.pairs_under(own, other, R[h], t[h], 1.0, observed)
+            np.testing.assert_array_equal(consensus.pairs_under(own, other, R[h], t[h], 1.0, observed, dist[h]), alone)
+            found += len(alone) + len(many[h])
+    assert found > 0

@@ -335,14 +335,14 @@ def _gated_cost(P: np.ndarray, dist: np.ndarray, cfg: RMNetConfig, veto: np.ndar
     cost = dist / cfg.assign_gate_sigma + cfg.assign_prob_weight * (1 - P)
     if D is not None and cfg.assign_desc_weight > 0:
         cost = cost + cfg.assign_desc_weight * D
-    ok_score = P >= cfg.assign_min_prob
+    allowed = P >= cfg.assign_min_prob
     if D is not None and cfg.assign_alike_desc > 0:
-        ok_score |= D < cfg.assign_alike_desc
+        allowed |= D < cfg.assign_alike_desc
     if score_a is not None and score_b is not None:
-        ok_score &= np.minimum(score_a[:, None], score_b[None, :]) >= cfg.consensus.assign_min_score
+        allowed &= np.minimum(score_a[:, None], score_b[None, :]) >= cfg.consensus.assign_min_score
     if veto is not None:
-        ok_score &= ~veto
-    return np.where((dist < cfg.assign_gate_sigma) & ok_score, cost, _NOT_ALLOWED)
+        allowed &= ~veto
+    return np.where((dist < cfg.assign_gate_sigma) & allowed, cost, _NOT_ALLOWED)
 
 
 def _one_to_one(gated: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
