@@ -61,6 +61,11 @@ def test_keep_newest_wakes_a_waiting_reader():
 
 
 def test_two_peers_exchange_and_count_bad_payloads():
+    """A bad payload and a vehicle not listened to are dropped and counted, never delivered.
+
+    Shared frames are published with congestion control DROP (a late frame is worth nothing), so
+    on a loaded machine a sample can be lost on the way: like a CAV at its frame rate, the test
+    sends again until each kind has arrived, and counts what it sent."""
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
     got: list[tuple[str, bytes]] = []
@@ -73,6 +78,14 @@ def test_two_peers_exchange_and_count_bad_payloads():
         if ("cav1", b"one") in got and ("cav2", b"two") in got:   # ("first" may come too)
             arrived.set()
 
+    def until(done, send) -> int:
+        sent, deadline = 0, time.monotonic() + 5
+        while not done() and time.monotonic() < deadline:
+            send()
+            sent += 1
+            time.sleep(0.05)
+        return sent
+
     with Transport(ZenohSection(listen=[ep])) as ego, Transport(ZenohSection(connect=[ep])) as cav:
         ego.subscribe(keys.all_of("shared"), "shared", on_payload, vehicles=["cav1", "cav2"])
         assert cav.wait_for_peers(5.0)
@@ -80,17 +93,19 @@ def test_two_peers_exchange_and_count_bad_payloads():
         deadline = time.monotonic() + 5
         while not cav.has_subscribers(keys.shared("cav1")) and time.monotonic() < deadline:
             time.sleep(0.01)
-        cav.put(keys.shared("cav3"), b"not listened to")
-        cav.put(keys.shared("cav1"), b"BAD frame")
-        cav.put(keys.shared("cav1"), b"one")
-        cav.put(keys.shared("cav2"), b"two")
-        assert arrived.wait(5.0)
+        foreign = until(lambda: ego.drops.snapshot().get("foreign", 0) >= 1,
+                        lambda: cav.put(keys.shared("cav3"), b"not listened to"))
+        bad = until(lambda: ego.drops.snapshot().get("malformed", 0) >= 1,
+                    lambda: cav.put(keys.shared("cav1"), b"BAD frame"))
+        until(arrived.is_set, lambda: (cav.put(keys.shared("cav1"), b"one"), cav.put(keys.shared("cav2"), b"two")))
+        assert arrived.is_set()
         time.sleep(0.1)
         drops = ego.drops.snapshot()
     assert ("cav1", b"one") in got and ("cav2", b"two") in got
     assert all(not p.startswith(b"BAD") for _, p in got)
-    assert drops.get("malformed") == 1
-    assert drops.get("foreign") == 1
+    assert {p for _, p in got} <= {b"first", b"one", b"two"}
+    assert 1 <= drops.get("malformed", 0) <= bad
+    assert 1 <= drops.get("foreign", 0) <= foreign
 
 
 def test_close_is_safe_twice_and_leaves_nothing_open():
