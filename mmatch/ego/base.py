@@ -89,6 +89,13 @@ def vehicle_centroids(frame: SharedFrame) -> np.ndarray:
     return out
 
 
+def background_tree(frame: SharedFrame) -> cKDTree | None:
+    """A k-d tree of a frame's background points (x, y, its radar frame, m); None below three
+    points. Once per frame inside a fusion (ego/memo.py)."""
+    bg = frame.background[:, :2]
+    return memo("background_tree", (frame,), lambda: cKDTree(bg) if len(bg) >= 3 else None)
+
+
 def point_counts(frame: SharedFrame) -> np.ndarray:
     """(V,) number of radar points per vehicle."""
     return np.bincount(frame.vehicle_index, minlength=frame.num_vehicles)[: frame.num_vehicles]

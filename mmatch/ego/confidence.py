@@ -48,10 +48,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import (Hypotheses, MatchResult, heading_yaws, point_counts, radial_ground_speeds,
-                             velocity_heading_yaws)
+from mmatch.ego.base import (Hypotheses, MatchResult, background_tree, heading_yaws, point_counts,
+                             radial_ground_speeds, velocity_heading_yaws)
 from mmatch.ego.confidence_trees import TreeEnsemble, choice_features
-from mmatch.ego.match.consensus import background_tree
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.rigid import inv2, rot2
 from mmatch.errors import ConfigError

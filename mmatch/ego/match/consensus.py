@@ -15,7 +15,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import Hypotheses, MatchContext, MatchResult, heading_yaws, road_speed_consistency
+from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree, heading_yaws,
+                             road_speed_consistency)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.memo import memo
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
@@ -209,13 +210,6 @@ class ConsensusMatcher:
             bg = cfg.background_weight * _background_scores(bg_own, bg_other, R, t, cfg, tree)
             return bg if alike_of is None else _vehicle_scores(A, B, alike_of(R), R, t, cfg) + bg
         return of
-
-
-def background_tree(frame: SharedFrame) -> cKDTree | None:
-    """A k-d tree of a frame's background points (x, y, its radar frame, m); None below three
-    points. Once per frame inside a fusion (ego/memo.py)."""
-    bg = frame.background[:, :2]
-    return memo("background_tree", (frame,), lambda: cKDTree(bg) if len(bg) >= 3 else None)
 
 
 def _prior_agreement(R: np.ndarray, t: np.ndarray, prior: np.ndarray, cfg: ConsensusConfig) -> np.ndarray:

@@ -37,7 +37,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mmatch.ego.base import Hypotheses, MatchContext, MatchResult, heading_yaws, road_speed_consistency
+from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree, heading_yaws,
+                             road_speed_consistency)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.match import consensus as cs
 from mmatch.ego.match.graph import build_graph
@@ -182,7 +183,7 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
             max(2, min(cfg.refine_hypotheses, cfg.refine_pair_budget // max(P.size, 1)))
         top = cs._distinct_best(R, t, coarse, ccfg, n_refine)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
-        tree = cs.background_tree(own)
+        tree = background_tree(own)
         rcfg = ccfg.tracking_refine() if ctx.prior_only and prior is not None else ccfg.refine
         allowed = W >= cfg.min_prob if candidates is None else None
         R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree, allowed)
