@@ -590,7 +590,7 @@ def shared_view(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray,
     not hidden behind a nearer vehicle the other detects, and (H,) how many of those the other
     missed: no vehicle of its view near (within sighting_m, or covisible_gate sigma by the two
     observations' covariances). A: own observations (Ego frame), B: the other's (CAV frame)."""
-    return _shared_view(A, B, R, t, cfg, mahalanobis(A, B, R, t) if len(A.centres) and len(B.centres) else None)
+    return _shared_view(A, B, R, t, cfg, _distances(A, B, R, t))
 
 
 def _shared_view(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray, cfg: ConfidenceConfig,
@@ -715,7 +715,13 @@ def _rmnet_evidence(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: list[
 def vehicle_distances(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> np.ndarray | None:
     """(H, Va, Vb) Mahalanobis distances of the frame pair's vehicles (its observations) under
     hypotheses R (H, 2, 2), t (H, 2); None without vehicles in a view."""
-    return mahalanobis(ctx.A, ctx.B, R, t) if len(ctx.A.centres) and len(ctx.B.centres) else None
+    return _distances(ctx.A, ctx.B, R, t)
+
+
+def _distances(A: Observations, B: Observations, R: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+    """(H, Va, Vb) `mahalanobis` of A's and B's vehicles under R (H, 2, 2), t (H, 2); None
+    without vehicles in a view."""
+    return mahalanobis(A, B, R, t) if len(A.centres) and len(B.centres) else None
 
 
 def features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],

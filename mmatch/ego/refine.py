@@ -62,6 +62,7 @@ def _solve3(M: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # J^T W J and J^T W r from the nine per-hypothesis sums of `_normal_equations`: (yaw, tx, ty)
 _H_FROM_SUMS = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])
 _H_SIGNS = np.array([1.0, -1.0, -1.0, -1.0, 1.0, 1.0, -1.0, 1.0, 1.0])
+_G_SIGNS = np.array([1.0, -1.0, -1.0])
 
 
 def _normal_equations(n: int, h_: np.ndarray, dr: np.ndarray, Wd: np.ndarray, W00: np.ndarray,
@@ -75,7 +76,7 @@ def _normal_equations(n: int, h_: np.ndarray, dr: np.ndarray, Wd: np.ndarray, W0
     """
     S = (h_ == np.arange(n)[:, None]) @ np.column_stack(
         [(dr * Wd).sum(axis=1), Wd, W00, W01, W11, (dr * Wr).sum(axis=1), Wr])
-    g = S[:, 6:9] * np.array([1.0, -1.0, -1.0])
+    g = S[:, 6:9] * _G_SIGNS
     return (S[:, _H_FROM_SUMS] * _H_SIGNS).reshape(n, 3, 3), g
 
 
