@@ -7,7 +7,8 @@ Binary, little-endian, length-prefixed, signed by the sender (Ed25519), quantise
     meta     sender length u8 | sender UTF-8 (<= 64 bytes) | seq u64 | stamp f64 (s)
              | radar_height f32 (m) | ego vx, vy i16 (cm/s; -32768 = unknown/NaN)
              | vehicles V u16 | vehicle points K u16 | background points B u16
-    vehicles V records: u1, v1, u2, v2 i16 (half pixels) | score u8 (round(s*255))
+    vehicles V records: u1, v1, u2, v2 i16 (half pixels of the canonical image, shared.py)
+             | score u8 (round(s*255))
              | depth u16 (cm) | box index u16 | points of this vehicle u16
              | centre x, y i16 (cm) | descriptor 32 x u8 (round(v*255))
     points   K records, grouped by vehicle in vehicle order: x, y, z i16 (cm)

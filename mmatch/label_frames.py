@@ -10,7 +10,7 @@ import numpy as np
 
 from mmatch.cav.egomotion import fit_egomotion
 from mmatch.errors import SceneFormatError
-from mmatch.shared import SharedFrame
+from mmatch.shared import SharedFrame, canonical_boxes
 from mmatch.types import View
 
 
@@ -33,7 +33,7 @@ def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
         ego_velocity=ego.velocity if ego.ok else np.full(2, np.nan),
         vehicle_points=np.vstack(pts).astype(np.float32) if pts else np.zeros((0, 5), np.float32),
         vehicle_index=np.concatenate(idx) if idx else np.zeros(0, np.int32),
-        vehicle_boxes=view.boxes[keep].reshape(-1, 6),
+        vehicle_boxes=canonical_boxes(view.boxes[keep], view.camera.K),
         vehicle_box_index=np.array(keep, np.int32),
         vehicle_centers=np.array(centers, np.float32).reshape(-1, 2),
         vehicle_features=view.features[keep].reshape(-1, 32),

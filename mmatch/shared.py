@@ -12,6 +12,21 @@ import numpy as np
 
 from mmatch.types import DESCRIPTOR_DIM
 
+# The shared frame's box corners are those of a pinhole camera of this focal length with its
+# principal point at (0, 0): a box's height in these units times its depth / 1000 is metres.
+CANONICAL_FOCAL_PX = 1000.0
+
+
+def canonical_boxes(boxes: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Boxes (M, 6) u1, v1, u2, v2 (px of the camera with intrinsics K (3, 3)), score, depth ->
+    the same boxes with corners in the canonical image: CANONICAL_FOCAL_PX x (u - cx) / fx and
+    likewise v (skew ignored). Score and depth unchanged; float32."""
+    b = np.array(boxes, np.float64).reshape(-1, 6)
+    K = np.asarray(K, np.float64)
+    b[:, [0, 2]] = CANONICAL_FOCAL_PX * (b[:, [0, 2]] - K[0, 2]) / K[0, 0]
+    b[:, [1, 3]] = CANONICAL_FOCAL_PX * (b[:, [1, 3]] - K[1, 2]) / K[1, 1]
+    return b.astype(np.float32)
+
 
 @dataclass
 class SharedFrame:
@@ -24,7 +39,10 @@ class SharedFrame:
     ego_velocity: float64 (2,) sender radar velocity over ground (vx, vy), m/s, its frame.
     vehicle_points: float32 (K, 5) x, y, z, doppler, snr of the moving-vehicle points.
     vehicle_index: int32 (K,) vehicle of each point, 0..V-1.
-    vehicle_boxes: float32 (V, 6) the camera box of each vehicle (u1, v1, u2, v2, score, depth).
+    vehicle_boxes: float32 (V, 6) the camera box of each vehicle (u1, v1, u2, v2, score, depth):
+        corners in the canonical image (`canonical_boxes`: normalised image coordinates times
+        CANONICAL_FOCAL_PX, so a receiver reads sizes and bearings without the sender's
+        intrinsics), score 0-1, depth m.
     vehicle_box_index: int32 (V,) index of that box in the sender's detections.
     vehicle_centers: float32 (V, 2) x, y of each vehicle centre as the camera estimates it
         (box-centre bearing at the box depth); the radar's estimate is the centroid of the

@@ -46,7 +46,7 @@ from mmatch.cav.membership import CandidateScene, assign, box_features, candidat
 from mmatch.cav.membership import load_model as load_membership
 from mmatch.cav.plausibility import duplicates, see_through
 from mmatch.errors import MMatchError
-from mmatch.shared import SharedFrame
+from mmatch.shared import SharedFrame, canonical_boxes
 from mmatch.types import DESCRIPTOR_DIM, CameraModel
 
 log = logging.getLogger(__name__)
@@ -240,7 +240,7 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
         ego_velocity=np.asarray(ego.velocity, np.float64).copy(),
         vehicle_points=points[veh_idx].astype(np.float32),
         vehicle_index=vidx.astype(np.int32),
-        vehicle_boxes=vb.astype(np.float32),
+        vehicle_boxes=canonical_boxes(vb, camera.K),
         vehicle_box_index=vbox,
         vehicle_centers=centres.astype(np.float32),
         vehicle_features=features[vbox].astype(np.float32),

@@ -22,7 +22,7 @@ Node features (NODE_DIM = 48), in order:
   39    mean Doppler / 20 m/s                        40    ground speed along the line of sight / 20 m/s
   41    ground speed known (0/1)                     42    detection score (0-1)
   43    (camera depth - radar range) / 5 m, 0 without points
-  44    physical box height from the camera, box px height x depth / 1000 px / 3 m
+  44    box height in metres: canonical box height x depth / 1000 px (shared.py) / 3 m
   45    speed along the own heading / 20 m/s (ground speed over the cosine, 0 when the ray is
         near-perpendicular)     46  the same across the heading    47  own speed / 20 m/s
 Local edge features (EDGE_DIM = 10), edge i -> j (j a neighbour of i) of one view:
@@ -42,7 +42,7 @@ import numpy as np
 
 from mmatch.ego.base import descriptor_distance, radial_ground_speeds
 from mmatch.ego.observations import Observations, observe
-from mmatch.shared import SharedFrame
+from mmatch.shared import CANONICAL_FOCAL_PX, SharedFrame
 
 NODE_DIM = 48
 EDGE_DIM = 10
@@ -135,7 +135,7 @@ def node_features(frame: SharedFrame, centres: np.ndarray) -> np.ndarray:
     boxes = np.asarray(frame.vehicle_boxes, np.float64).reshape(-1, 6)
     x[:, 42] = np.clip(boxes[:, 4], 0, 1)
     x[:, 43] = np.where(has, np.clip(boxes[:, 5] - r, -10, 10), 0) / 5
-    x[:, 44] = np.clip((boxes[:, 3] - boxes[:, 1]) * boxes[:, 5] / 1000.0, 0, 10) / 3
+    x[:, 44] = np.clip((boxes[:, 3] - boxes[:, 1]) * boxes[:, 5] / CANONICAL_FOCAL_PX, 0, 10) / 3
     v = np.asarray(frame.ego_velocity, float)
     speed = float(np.linalg.norm(v)) if np.all(np.isfinite(v)) else 0.0
     x[:, 47] = speed / SPEED_SCALE_MPS

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mmatch.shared import SharedFrame
+from mmatch.shared import CANONICAL_FOCAL_PX, SharedFrame
 
 
 def _rot(yaw: float) -> np.ndarray:
@@ -55,9 +55,9 @@ def _view(rng, pose_xy, heading, vel_world, veh_xy, veh_vel, colours, heights, p
         depth = np.linalg.norm(c) * (1 + rng.normal(0, 0.08))
         b = np.arctan2(c[0], c[1]) + rng.normal(0, 0.01)
         centres.append([depth * np.sin(b), depth * np.cos(b)])
-        h_px, w_px = 1000.0 * heights[vid] / depth, 1000.0 * 4.5 / depth
-        u0 = 640 + 1000.0 * np.tan(b)
-        boxes.append([u0 - w_px / 2, 360 - h_px / 2, u0 + w_px / 2, 360 + h_px / 2, rng.uniform(0.6, 0.95), depth])
+        h_px, w_px = CANONICAL_FOCAL_PX * heights[vid] / depth, CANONICAL_FOCAL_PX * 4.5 / depth
+        u0 = CANONICAL_FOCAL_PX * np.tan(b)                     # canonical image (shared.py)
+        boxes.append([u0 - w_px / 2, -h_px / 2, u0 + w_px / 2, h_px / 2, rng.uniform(0.6, 0.95), depth])
     bg = to_local(posts - pose_xy) if len(posts) else np.zeros((0, 2))
     bg = bg[(np.linalg.norm(bg, axis=1) < 90) & (np.abs(np.arctan2(bg[:, 0], bg[:, 1])) < np.radians(60))]
     bg = bg + rng.normal(0, 0.1, bg.shape)
