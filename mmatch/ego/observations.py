@@ -195,26 +195,64 @@ def _paired(A: Observations, B: Observations) -> PairedObservations:
 
 
 def _maha_sq(ca, Sa, cb, Sb, R, t):
-    """(H, Va, Vb) squared Mahalanobis distances; explicit 2x2 algebra (einsum is slow here),
-    in float32 (half the memory traffic of these (H, Va, Vb) arrays; distances are gated at a
-    few sigma, far above float32's resolution)."""
+    """(Va, Vb, H) squared Mahalanobis distances, the hypotheses last; explicit 2x2 algebra
+    (einsum is slow here), in float32 (half the memory traffic of these arrays; distances are
+    gated at a few sigma, far above float32's resolution).
+
+    Hypotheses last and the arithmetic in place: with a few vehicles a view the pair axes are
+    short, so every broadcast over them would run numpy's inner loops a handful of elements
+    at a time and every temporary would cost as much as computing it."""
     f = np.float32
     R, t = np.asarray(R, f), np.asarray(t, f)
-    c, s = R[:, 0, 0][:, None], R[:, 1, 0][:, None]                           # (H, 1)
-    bx, by = cb[None, :, 0], cb[None, :, 1]                                   # (1, Vb)
-    btx, bty = c * bx - s * by + t[:, 0:1], s * bx + c * by + t[:, 1:2]       # (H, Vb)
-    a, b, d = Sb[None, :, 0, 0], Sb[None, :, 0, 1], Sb[None, :, 1, 1]
+    c, s = R[:, 0, 0], R[:, 1, 0]                                             # (H,)
+    bx, by = cb[:, 0, None], cb[:, 1, None]                                   # (Vb, 1)
+    btx, bty = c * bx - s * by + t[:, 0], s * bx + c * by + t[:, 1]           # (Vb, H)
+    a, b, d = Sb[:, 0, 0, None], Sb[:, 0, 1, None], Sb[:, 1, 1, None]
     cc, ss, cs = c * c, s * s, c * s
-    r00 = a * cc - 2 * b * cs + d * ss                                        # R Sb R^T, (H, Vb)
+    r00 = a * cc - 2 * b * cs + d * ss                                        # R Sb R^T, (Vb, H)
     r01 = (a - d) * cs + b * (cc - ss)
     r11 = a * ss + 2 * b * cs + d * cc
-    s00 = Sa[None, :, None, 0, 0] + r00[:, None]                              # (H, Va, Vb)
-    s01 = Sa[None, :, None, 0, 1] + r01[:, None]
-    s11 = Sa[None, :, None, 1, 1] + r11[:, None]
-    dx = ca[None, :, None, 0] - btx[:, None]
-    dy = ca[None, :, None, 1] - bty[:, None]
-    det = s00 * s11 - s01 * s01
-    return (s11 * dx * dx - 2 * s01 * dx * dy + s00 * dy * dy) / np.maximum(det, f(1e-12))
+    s00 = Sa[:, None, None, 0, 0] + r00                                       # (Va, Vb, H)
+    s01 = Sa[:, None, None, 0, 1] + r01
+    s11 = Sa[:, None, None, 1, 1] + r11
+    dx = ca[:, None, None, 0] - btx
+    dy = ca[:, None, None, 1] - bty
+    det = s00 * s11
+    det -= s01 * s01
+    np.maximum(det, f(1e-12), out=det)
+    q = s11                                         # s11 dx dx - 2 s01 dx dy + s00 dy dy, left to right
+    q *= dx
+    q *= dx
+    s01 *= 2
+    s01 *= dx
+    s01 *= dy
+    q -= s01
+    s00 *= dy
+    s00 *= dy
+    q += s00
+    q /= det
+    return q
+
+
+def pair_major_mahalanobis(A: Observations | PairedObservations, B: Observations | None, R: np.ndarray,
+                           t: np.ndarray, with_modes: bool = False):
+    """`mahalanobis` with the hypotheses last: (Va, Vb, H) distances (and modes), for callers
+    that reduce over the vehicles (a reduction over a short last axis is slow in numpy)."""
+    P = A if isinstance(A, PairedObservations) else paired(A, B)
+    Va, Vb = P.Va, P.Vb
+    q = _maha_sq(P.ca, P.Sa, P.cb, P.Sb, R, t)                              # (2 Va, 2 Vb, H)
+    q += P.pen[:, :, None]
+    # the four combinations are the four blocks of q; the best of them block by block (a
+    # reduction over a combination axis costs twice as much)
+    best = q[:Va, :Vb]
+    mode = np.zeros(best.shape, np.int8) if with_modes else None
+    for k, block in ((1, q[:Va, Vb:]), (2, q[Va:, :Vb]), (3, q[Va:, Vb:])):
+        if with_modes:
+            mode[block < best] = k           # strictly better: ties keep the lower mode (argmin's)
+        best = np.minimum(best, block)
+    np.maximum(best, 0.0, out=best)
+    d = np.sqrt(best, out=best)
+    return (d, mode) if with_modes else d   # mode: 2 * own mode + other mode
 
 
 def mahalanobis(A: Observations | PairedObservations, B: Observations | None, R: np.ndarray, t: np.ndarray,
@@ -227,16 +265,7 @@ def mahalanobis(A: Observations | PairedObservations, B: Observations | None, R:
     that combination (0 best-best, 1 best-camera, 2 camera-best, 3 camera-camera).
     A may be `paired(A, B)` (B then None), computed once for many calls.
     """
-    P = A if isinstance(A, PairedObservations) else paired(A, B)
-    Va, Vb = P.Va, P.Vb
-    q = _maha_sq(P.ca, P.Sa, P.cb, P.Sb, R, t) + P.pen                    # (H, 2 Va, 2 Vb)
-    # the four combinations are the four blocks of q; the best of them block by block (a
-    # transposed copy of q and a reduction over its last axis cost twice as much)
-    best = q[:, :Va, :Vb]
-    mode = np.zeros(best.shape, np.int8) if with_modes else None
-    for k, block in ((1, q[:, :Va, Vb:]), (2, q[:, Va:, :Vb]), (3, q[:, Va:, Vb:])):
-        if with_modes:
-            mode[block < best] = k           # strictly better: ties keep the lower mode (argmin's)
-        best = np.minimum(best, block)
-    d = np.sqrt(np.maximum(best, 0.0))
-    return (d, mode) if with_modes else d   # mode: 2 * own mode + other mode
+    out = pair_major_mahalanobis(A, B, R, t, with_modes)
+    if with_modes:
+        return tuple(np.ascontiguousarray(x.transpose(2, 0, 1)) for x in out)
+    return np.ascontiguousarray(out.transpose(2, 0, 1))

@@ -19,7 +19,7 @@ from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_t
                              road_speed_consistency)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.memo import memo
-from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
+from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe, pair_major_mahalanobis
 from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import distinct_best, se2_to_matrix
 from mmatch.shared import SharedFrame
@@ -248,17 +248,22 @@ def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
 
 
 def _likeness(D, yaws, speed, cfg, conf_a, conf_b):
-    """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair."""
+    """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair.
+
+    With road speeds a hypothesis's likeness depends on it only through its nearest heading
+    yaw: the (4, Va, Vb) likeness of each yaw is computed once and each hypothesis takes its own."""
     if cfg.desc_width > 0:   # likelihood-shaped: about 2 when clearly alike, 0 when clearly not
         alike = (2.0 / (1.0 + np.exp((D - cfg.desc_mid) / cfg.desc_width)) - 0.5)[None]
     else:
         alike = np.clip(1 - D / cfg.desc_gate, 0, None)[None]
     conf = np.sqrt(conf_a[:, None] * conf_b[None, :])[None]
+    if speed is None or yaws is None:
+        same = (0.5 + alike) * conf - 0.5
+        return lambda R: same
+    per_yaw = (0.5 + (alike + cfg.speed_weight * speed)) * conf - 0.5           # (4, Va, Vb)
 
     def of(R: np.ndarray) -> np.ndarray:
-        a = alike if speed is None or yaws is None else \
-            alike + cfg.speed_weight * speed[_yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)]
-        return (0.5 + a) * conf - 0.5
+        return per_yaw[_yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)]
     return of
 
 
@@ -367,23 +372,31 @@ def _vehicle_scores(A: Observations, B: Observations, alike, R, t, cfg):
 
 
 def _vehicle_scores_chunk(A, B, alike, R, t, cfg):
-    dist = mahalanobis(A, B, R, t)                                     # (H, Va, Vb)
-    close = np.clip(1 - dist / cfg.gate_sigma, 0, None)
-    score = (close * np.clip(0.5 + alike, 0, None)).max(axis=2).sum(axis=1)
+    # the distances and their reductions with the hypotheses last (numpy reduces short last
+    # axes slowly); the summed closeness per hypothesis as over a (H, Va) array
+    dist = pair_major_mahalanobis(A, B, R, t)                          # (Va, Vb, H)
+    close = dist / cfg.gate_sigma                                      # 1 - dist / gate, at least 0
+    np.subtract(1, close, out=close)
+    np.maximum(close, 0, out=close)
+    weight = np.clip(0.5 + alike, 0, None)                             # (H or 1, Va, Vb)
+    best = (close * np.ascontiguousarray(weight.transpose(1, 2, 0))).max(axis=1)       # (Va, H)
+    score = np.ascontiguousarray(best.T).sum(axis=1)
+    Va = len(A.centres)
     Ac, Bc = A.centres, B.centres
     Bt = Bc @ R.transpose(0, 2, 1) + t[:, None]                        # (H, Vb, 2) other vehicles, own frame
     body = np.array([0.0, -cfg.body_offset_m])
     cav_body = R @ body + t                                            # (H, 2) other vehicle's centre, own frame
     A_in_cav = (Ac[None] - t[:, None]) @ R                             # (H, Va, 2) own vehicles, other frame
     ego_body_in_cav = ((body[None] - t)[:, None] @ R)[:, 0]            # (H, 2)
-    a_is_cav = np.linalg.norm(Ac[None] - cav_body[:, None], axis=2) < cfg.sighting_m
-    b_is_ego = np.linalg.norm(Bt - body, axis=2) < cfg.sighting_m
-    a_unpaired = dist.min(axis=2) > cfg.gate_sigma
-    b_unpaired = dist.min(axis=1) > cfg.gate_sigma
-    miss = (a_unpaired & _in_view(A_in_cav, cfg) & ~a_is_cav).sum(1) \
-        + (b_unpaired & _in_view(Bt, cfg) & ~b_is_ego).sum(1)
-    seen = a_is_cav.any(1).astype(float) * _in_view(cav_body, cfg) \
-        + b_is_ego.any(1).astype(float) * _in_view(ego_body_in_cav, cfg)
+    # the sightings of both views (own vehicles at the other's body, other vehicles at the
+    # own body) and where each camera looks, each in one call for both
+    sighted = np.linalg.norm(np.concatenate([Ac[None] - cav_body[:, None], Bt - body], axis=1),
+                             axis=2) < cfg.sighting_m                  # (H, Va + Vb)
+    a_is_cav, b_is_ego = sighted[:, :Va], sighted[:, Va:]
+    view = _in_view(np.concatenate([A_in_cav, Bt, cav_body[:, None], ego_body_in_cav[:, None]], axis=1), cfg)
+    unpaired = (np.concatenate([dist.min(axis=1), dist.min(axis=0)]) > cfg.gate_sigma).T
+    miss = (unpaired & view[:, :-2] & ~sighted).sum(1)
+    seen = a_is_cav.any(1).astype(float) * view[:, -2] + b_is_ego.any(1).astype(float) * view[:, -1]
     return score - cfg.miss_weight * miss + cfg.sighting_weight * seen
 
 
