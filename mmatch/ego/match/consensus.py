@@ -9,6 +9,7 @@ are the Hungarian assignment under it, gated in distance and appearance.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -141,13 +142,13 @@ class ConsensusMatcher:
         speed = road_speed_consistency(own, other)
         alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg))
         veh_score = _vehicle_scores(A, B, alike_of(R), R, t, cfg)
-        n_refine = cfg.refine_hypotheses
+        rank, n_refine = veh_score, cfg.refine_hypotheses
         if prior is not None:
-            veh_score[-1] = np.inf
+            rank = np.concatenate([veh_score[:-1], [np.inf]])
             n_refine = cfg.refine_with_prior
         sighted = np.zeros(len(R), bool)
         sighted[n_regular:n_regular + n_sighting] = True
-        order = np.argsort(-veh_score)
+        order = np.argsort(-rank)
         top = distinct_best(R, t, order[~sighted[order]], n_refine, cfg.distinct_m, cfg.distinct_deg)
         if n_sighting and cfg.sighting_refine:           # slots of their own: they never displace a pair's
             top = np.concatenate([top, distinct_best(R, t, order[sighted[order]], cfg.sighting_refine,
@@ -157,8 +158,9 @@ class ConsensusMatcher:
         rcfg = cfg.tracking_refine() if ctx.prior_only and prior is not None else cfg.refine
         R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree)
         Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
-        total = _vehicle_scores(A, B, alike_of(Rr), Rr, tr, cfg) \
-            + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
+        # the unrefined hypotheses' vehicle scores are the coarse ones (row by row the same)
+        vehicles = np.concatenate([veh_score[top], _vehicle_scores(A, B, alike_of(R_ref), R_ref, t_ref, cfg)])
+        total = vehicles + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
         if prior is not None and cfg.prior_weight:
             total = total + cfg.prior_weight * _prior_agreement(Rr, tr, prior, cfg)
         best = int(np.argmax(total))
@@ -237,8 +239,18 @@ def _lifted_scores(frame: SharedFrame, typical: float) -> np.ndarray:
     sc = frame.vehicle_boxes[:, 4].astype(float)
     if len(sc) == 0:
         return sc
-    med = float(np.median(sc))
+    med = _median(sc)
     return sc * (typical / med if 0 < med < typical else 1.0)
+
+
+def _median(x: np.ndarray) -> float:
+    """np.median of a short 1-D array, without its overhead (ten times the sort's): the middle
+    value, or the mean of the two middle ones; NaN when any is."""
+    v = np.sort(x)
+    if np.isnan(v[-1]):
+        return float("nan")
+    n = len(v)
+    return float((v[(n - 1) // 2] + v[n // 2]) / 2)
 
 
 def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
@@ -267,15 +279,30 @@ def _likeness(D, yaws, speed, cfg, conf_a, conf_b):
     return of
 
 
-def _yaw_rotations(yaws: np.ndarray) -> np.ndarray:
+def _rotations(yaws: np.ndarray) -> np.ndarray:
     """(Y, 2, 2) planar rotation matrices of yaws (Y,) rad."""
     c, s = np.cos(yaws), np.sin(yaws)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], 1)
+    R = np.empty((len(c), 2, 2))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1] = c, -s, s, c
+    return R
+
+
+def _pairs_of(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """np.triu_indices(n, 1): every two of n items (i < j); kept for up to 64 items
+    (read-only), where building them costs more than using them."""
+    return _small_pairs_of(n) if n <= 64 else np.triu_indices(n, 1)
+
+
+@functools.lru_cache(maxsize=65)
+def _small_pairs_of(n: int) -> tuple[np.ndarray, np.ndarray]:
+    p, q = np.triu_indices(n, 1)
+    p.flags.writeable = q.flags.writeable = False
+    return p, q
 
 
 def _single_pair_hypotheses(A, B, cand, yaws):
     """Transforms from one candidate pair placed under each heading-prior yaw: (C*4, 2, 2), (C*4, 2)."""
-    Rk = _yaw_rotations(yaws)                                                   # (4, 2, 2)
+    Rk = _rotations(yaws)                                                   # (4, 2, 2)
     R = np.repeat(Rk[None], len(cand), 0).reshape(-1, 2, 2)
     Bj = np.repeat(B[cand[:, 1]], len(yaws), 0)
     t = np.repeat(A[cand[:, 0]], len(yaws), 0) - (R @ Bj[:, :, None])[..., 0]
@@ -289,7 +316,7 @@ def _sighting_hypotheses(A, B, yaws, body_offset_m):
     The radar sits body_offset_m ahead of its vehicle's centre (y forward): other -> own maps the
     other's body centre (0, -offset) onto own detection A[k]; the own body centre onto B[m] is
     R B[m] + t = (0, -offset)."""
-    Rk = _yaw_rotations(yaws)                                                   # (Y, 2, 2)
+    Rk = _rotations(yaws)                                                   # (Y, 2, 2)
     body = np.array([0.0, -body_offset_m])
     t_a = A[:, None] - (Rk @ body)[None]                                        # (Va, Y, 2)
     t_b = body - (B @ Rk.transpose(0, 2, 1)).transpose(1, 0, 2)                # (Vb, Y, 2)
@@ -329,7 +356,7 @@ def _pair_hypotheses(A, B, cand, cfg, cost, most):
             i, j = cand[0]
             return np.eye(2)[None], (A[i] - B[j])[None]
         return np.zeros((0, 2, 2)), np.zeros((0, 2))
-    p, q = np.triu_indices(len(cand), 1)
+    p, q = _pairs_of(len(cand))
     i, j, k, l = cand[p, 0], cand[p, 1], cand[q, 0], cand[q, 1]
     ok = (i != k) & (j != l)
     da = np.linalg.norm(A[i] - A[k], axis=1)
@@ -340,9 +367,7 @@ def _pair_hypotheses(A, B, cand, cfg, cost, most):
         keep = _most_alike(cost[p[ok]] + cost[q[ok]], most)
         i, j, k, l = i[keep], j[keep], k[keep], l[keep]
     va, vb = A[k] - A[i], B[l] - B[j]
-    ang = np.arctan2(va[:, 1], va[:, 0]) - np.arctan2(vb[:, 1], vb[:, 0])
-    c, s = np.cos(ang), np.sin(ang)
-    R = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], 1)
+    R = _rotations(np.arctan2(va[:, 1], va[:, 0]) - np.arctan2(vb[:, 1], vb[:, 0]))
     mid_a, mid_b = (A[i] + A[k]) / 2, (B[j] + B[l]) / 2
     t = mid_a - (R @ mid_b[:, :, None])[..., 0]
     return R, t
