@@ -82,11 +82,16 @@ def vehicle_centroids(frame: SharedFrame) -> np.ndarray:
     if len(frame.vehicle_points):
         idx = frame.vehicle_index
         counts = np.bincount(idx, minlength=frame.num_vehicles)
-        sums = np.zeros((frame.num_vehicles, 2))
-        np.add.at(sums, idx, frame.vehicle_points[:, :2])
+        sums = _group_sums(idx, frame.vehicle_points[:, :2], frame.num_vehicles)
         has = counts > 0
         out[has] = sums[has] / counts[has, None]
     return out
+
+
+def _group_sums(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(n, 2) float64 sums of `values` (N, 2) per group index 0..n-1, added in their order
+    (as np.add.at adds them, at a third of its cost)."""
+    return np.column_stack([np.bincount(group, weights=values[:, k], minlength=n)[:n] for k in range(2)])
 
 
 def background_tree(frame: SharedFrame) -> cKDTree | None:
@@ -302,8 +307,7 @@ def _radial_ground_speeds(frame: SharedFrame) -> tuple[np.ndarray, np.ndarray]:
     counts = np.bincount(idx, minlength=V)[:V]
     has = counts > 0
     g[has] = _group_medians(idx, gp, V)[has]      # wheel returns spread 0-2x the body: median
-    us = np.zeros((V, 2))
-    np.add.at(us, idx, u[:, :2])
+    us = _group_sums(idx, u[:, :2], V)
     us[has] /= np.maximum(np.linalg.norm(us[has], axis=1, keepdims=True), 1e-9)
     u_mean[has] = us[has]
     return g, u_mean
@@ -360,13 +364,11 @@ def _road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float
 
     Se = speeds(ge, ue, angles[0])                                 # (Va, 4)
     Sc = speeds(gc, uc, angles[1])                                 # (Vb, 4)
-    out = np.zeros((4, len(Se), len(Sc)))
-    for m in range(4):
-        Sc_m = Sc[:, (np.arange(4) - m) % 4]                       # CAV speed along Ego direction k
-        diff = np.abs(Se[:, None, :] - Sc_m[None, :, :])            # (Va, Vb, 4)
-        tol = tol_mps + 0.1 * np.abs(Se[:, None, :])
-        valid = np.isfinite(diff)
-        ok = (valid & (diff < tol)).any(axis=2)
-        seen = valid.any(axis=2)
-        out[m] = np.where(ok, 1.0, np.where(seen, -1.0, 0.0))
-    return out
+    shift = (np.arange(4)[None] - np.arange(4)[:, None]) % 4       # [m, k]: CAV direction k - m
+    Sc_m = Sc[:, shift].transpose(1, 0, 2)                         # (4, Vb, 4) CAV speed along Ego direction k
+    diff = np.abs(Se[None, :, None, :] - Sc_m[:, None])            # (4, Va, Vb, 4)
+    tol = tol_mps + 0.1 * np.abs(Se[:, None, :])
+    valid = np.isfinite(diff)
+    ok = (valid & (diff < tol)).any(axis=3)
+    seen = valid.any(axis=3)
+    return np.where(ok, 1.0, np.where(seen, -1.0, 0.0))
