@@ -11,6 +11,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mmatch.ego.memo import memo
+from mmatch.ego.rigid import lengths
 from mmatch.shared import SharedFrame
 
 
@@ -145,7 +146,7 @@ class FarSideModel:
         np.minimum.at(nearest, frame.vehicle_index, r)
         has = np.isfinite(nearest)
         c = vehicle_centroids(frame) if centroids is None else centroids
-        beyond = np.linalg.norm(c, axis=1) - nearest
+        beyond = lengths(c) - nearest
         b = np.asarray(frame.vehicle_boxes, np.float64).reshape(-1, 6)
         aspect = (b[:, 3] - b[:, 1]) / np.maximum(b[:, 2] - b[:, 0], 1.0)
         shift = self.base_m + self.per_beyond_near * np.where(has, beyond, 0.0) + self.per_aspect * aspect
@@ -161,7 +162,7 @@ def far_side_centres(frame: SharedFrame, model: FarSideModel = FAR_SIDE) -> np.n
     along their bearing by `model.shifts` (FarSideModel); box-based centres already aim at the
     centre and stay."""
     c = vehicle_centroids(frame)
-    norm = np.maximum(np.linalg.norm(c, axis=1), 1e-6)
+    norm = np.maximum(lengths(c), 1e-6)
     return c + (model.shifts(frame, c) / norm)[:, None] * c
 
 

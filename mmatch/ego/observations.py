@@ -20,6 +20,7 @@ Frames: the sender's radar frame (x right, y forward), metres.
 from __future__ import annotations
 
 import contextlib
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
@@ -27,6 +28,7 @@ import numpy as np
 
 from mmatch.ego.base import far_side_centres, point_counts
 from mmatch.ego.memo import memo, shared_block
+from mmatch.ego.rigid import lengths
 from mmatch.shared import SharedFrame
 
 
@@ -90,7 +92,7 @@ class Observations:
 
 
 def _ray_cov(c: np.ndarray, along: np.ndarray, across_m: float, across_rad: float) -> np.ndarray:
-    r = np.maximum(np.linalg.norm(c, axis=1), 1e-6)
+    r = np.maximum(lengths(c), 1e-6)
     u = c / r[:, None]
     n = np.column_stack([-u[:, 1], u[:, 0]])
     across = across_m + across_rad * r
@@ -108,11 +110,11 @@ def _on_camera_ray(c: np.ndarray, cov: np.ndarray, cam: np.ndarray, has: np.ndar
     c, cov = c.copy(), cov.copy()
     origin = np.array([0.0, -model.camera_back_m])
     d = cam[has] - origin
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-6)
+    d /= np.maximum(lengths(d), 1e-6)[:, None]
     n = np.column_stack([-d[:, 1], d[:, 0]])
     rel = c[has] - origin
     s_along, s_across = np.einsum("vi,vi->v", rel, d), np.einsum("vi,vi->v", rel, n)
-    r = np.linalg.norm(c[has], axis=1)
+    r = lengths(c[has])
     var_r = (model.across_m + model.across_rad * r) ** 2
     var_c = (model.camera_across_m + model.camera_across_rad * r) ** 2
     w = var_c / (var_c + var_r)                          # weight of the radar's across-ray offset
@@ -141,10 +143,16 @@ def observe(frame: SharedFrame, model: ObservationModel = ObservationModel()) ->
 def _with_penalty(frame: SharedFrame, model: ObservationModel) -> Observations:
     """The geometry, shared by models that differ only in camera_penalty (the pose search's and
     the confidence model's), with this model's penalties."""
-    geometry = replace(model, camera_penalty=0.0)
+    geometry = _geometry_model(model)
     g = memo("observe_geometry", (frame,), lambda: _observe(frame, geometry), geometry)
     has = point_counts(frame) > 0
     return Observations(g.centres, g.cov, g.cam_centres, g.cam_cov, np.where(has, model.camera_penalty, 0.0))
+
+
+@functools.lru_cache(maxsize=8)
+def _geometry_model(model: ObservationModel) -> ObservationModel:
+    """The model without camera penalty (kept: dataclasses.replace costs more than the lookup)."""
+    return replace(model, camera_penalty=0.0)
 
 
 def _observe(frame: SharedFrame, model: ObservationModel) -> Observations:
@@ -155,7 +163,7 @@ def _observe(frame: SharedFrame, model: ObservationModel) -> Observations:
         return Observations(z2, z22, z2, z22, np.zeros(0))
     has = point_counts(frame) > 0
     cam = np.asarray(frame.vehicle_centers, np.float64).reshape(-1, 2)
-    cam_along = model.along_depth_m + model.along_depth_rel * np.linalg.norm(cam, axis=1)
+    cam_along = model.along_depth_m + model.along_depth_rel * lengths(cam)
     cam_cov = _ray_cov(cam, cam_along, model.across_m, model.across_rad)
     along = np.where(has, model.along_points_m, cam_along)
     cov = _ray_cov(c, along, model.across_m, model.across_rad)

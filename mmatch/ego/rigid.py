@@ -104,14 +104,19 @@ def yaw_of(T: np.ndarray) -> float:
     return float(np.arctan2(T[1, 0], T[0, 0]))
 
 
+def lengths(v: np.ndarray) -> np.ndarray:
+    """(...) lengths of planar vectors v (..., 2): np.linalg.norm's sum of squares, without its
+    slow reduction over an axis of two (numpy runs it two elements at a time)."""
+    x, y = v[..., 0], v[..., 1]
+    return np.sqrt(x * x + y * y)
+
+
 def near_transforms(yaw_a: np.ndarray, t_a: np.ndarray, yaw_b: np.ndarray, t_b: np.ndarray, distinct_m: float,
                     distinct_deg: float) -> np.ndarray:
     """(A, B) whether planar transforms a (yaw (A,) rad, t (A, 2) m) and b lie within distinct_m
     and distinct_deg of each other."""
     dy = np.abs((yaw_a[:, None] - yaw_b[None] + np.pi) % (2 * np.pi) - np.pi)
-    dx0, dx1 = t_a[:, 0, None] - t_b[None, :, 0], t_a[:, 1, None] - t_b[None, :, 1]
-    # np.linalg.norm's sum of squares, without its slow reduction over an axis of two
-    return (np.sqrt(dx0 * dx0 + dx1 * dx1) < distinct_m) & (dy < np.radians(distinct_deg))
+    return (lengths(t_a[:, None] - t_b[None]) < distinct_m) & (dy < np.radians(distinct_deg))
 
 
 def distinct_best(R: np.ndarray, t: np.ndarray, order: np.ndarray, n: int, distinct_m: float,

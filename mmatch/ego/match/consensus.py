@@ -22,7 +22,7 @@ from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.memo import memo
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe, pair_major_mahalanobis
 from mmatch.ego.refine import RefineConfig, refine_many
-from mmatch.ego.rigid import distinct_best, se2_to_matrix
+from mmatch.ego.rigid import distinct_best, lengths, se2_to_matrix
 from mmatch.shared import SharedFrame
 
 
@@ -373,16 +373,9 @@ def _pair_hypotheses(A, B, cand, cfg, cost, most):
     return R, t
 
 
-def _length(v: np.ndarray) -> np.ndarray:
-    """(...) lengths of vectors v (..., 2): np.linalg.norm's sum of squares, without its slow
-    reduction over an axis of two."""
-    x, y = v[..., 0], v[..., 1]
-    return np.sqrt(x * x + y * y)
-
-
 def _in_view(p: np.ndarray, cfg: ConsensusConfig) -> np.ndarray:
     """Whether points (..., 2) in a radar frame lie where that vehicle's camera detects vehicles."""
-    r = _length(p)
+    r = lengths(p)
     az = np.abs(np.arctan2(p[..., 0], p[..., 1]))
     return (r > 4.0) & (r < cfg.camera_range_m) & (az < np.radians(cfg.camera_half_fov_deg))
 
@@ -422,7 +415,7 @@ def _vehicle_scores_chunk(A, B, alike, R, t, cfg):
     ego_body_in_cav = ((body[None] - t)[:, None] @ R)[:, 0]            # (H, 2)
     # the sightings of both views (own vehicles at the other's body, other vehicles at the
     # own body) and where each camera looks, each in one call for both
-    sighted = _length(np.concatenate([Ac[None] - cav_body[:, None], Bt - body], axis=1)) < cfg.sighting_m
+    sighted = lengths(np.concatenate([Ac[None] - cav_body[:, None], Bt - body], axis=1)) < cfg.sighting_m
     a_is_cav, b_is_ego = sighted[:, :Va], sighted[:, Va:]
     view = _in_view(np.concatenate([A_in_cav, Bt, cav_body[:, None], ego_body_in_cav[:, None]], axis=1), cfg)
     unpaired = (np.concatenate([dist.min(axis=1), dist.min(axis=0)]) > cfg.gate_sigma).T
