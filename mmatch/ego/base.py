@@ -309,7 +309,7 @@ def _radial_ground_speeds(frame: SharedFrame) -> tuple[np.ndarray, np.ndarray]:
     has = counts > 0
     g[has] = _group_medians(idx, gp, V)[has]      # wheel returns spread 0-2x the body: median
     us = _group_sums(idx, u[:, :2], V)
-    us[has] /= np.maximum(np.linalg.norm(us[has], axis=1, keepdims=True), 1e-9)
+    us[has] /= np.maximum(lengths(us[has]), 1e-9)[:, None]
     u_mean[has] = us[has]
     return g, u_mean
 
