@@ -11,7 +11,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mmatch.ego.memo import memo
-from mmatch.ego.rigid import lengths
+from mmatch.numeric import lengths
 from mmatch.shared import SharedFrame
 
 

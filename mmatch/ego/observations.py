@@ -28,7 +28,7 @@ import numpy as np
 
 from mmatch.ego.base import far_side_centres, point_counts
 from mmatch.ego.memo import memo, shared_block
-from mmatch.ego.rigid import lengths
+from mmatch.numeric import lengths
 from mmatch.shared import SharedFrame
 
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from mmatch.numeric import lengths
+
 
 def se2_to_matrix(R2: np.ndarray, t2: np.ndarray, dz: float = 0.0) -> np.ndarray:
     """4x4 float64 from a 2x2 rotation, a 2-vector translation and a z offset (m)."""
@@ -102,13 +104,6 @@ def rot2(yaw: np.ndarray) -> np.ndarray:
 def yaw_of(T: np.ndarray) -> float:
     """Yaw (rad) of a 4x4 or 2x2 rotation."""
     return float(np.arctan2(T[1, 0], T[0, 0]))
-
-
-def lengths(v: np.ndarray) -> np.ndarray:
-    """(...) lengths of planar vectors v (..., 2): np.linalg.norm's sum of squares, without its
-    slow reduction over an axis of two (numpy runs it two elements at a time)."""
-    x, y = v[..., 0], v[..., 1]
-    return np.sqrt(x * x + y * y)
 
 
 def near_transforms(yaw_a: np.ndarray, t_a: np.ndarray, yaw_b: np.ndarray, t_b: np.ndarray, distinct_m: float,

@@ -22,7 +22,8 @@ from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.memo import memo
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe, pair_major_mahalanobis
 from mmatch.ego.refine import RefineConfig, refine_many
-from mmatch.ego.rigid import distinct_best, lengths, se2_to_matrix
+from mmatch.ego.rigid import distinct_best, se2_to_matrix
+from mmatch.numeric import lengths, median
 from mmatch.shared import SharedFrame
 
 
@@ -239,18 +240,8 @@ def _lifted_scores(frame: SharedFrame, typical: float) -> np.ndarray:
     sc = frame.vehicle_boxes[:, 4].astype(float)
     if len(sc) == 0:
         return sc
-    med = _median(sc)
+    med = float(median(sc))
     return sc * (typical / med if 0 < med < typical else 1.0)
-
-
-def _median(x: np.ndarray) -> float:
-    """np.median of a short 1-D array, without its overhead (ten times the sort's): the middle
-    value, or the mean of the two middle ones; NaN when any is."""
-    v = np.sort(x)
-    if np.isnan(v[-1]):
-        return float("nan")
-    n = len(v)
-    return float((v[(n - 1) // 2] + v[n // 2]) / 2)
 
 
 def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
