@@ -38,6 +38,7 @@ import numpy as np
 from mmatch.cav.accuracy import RadarAccuracyConfig, sigma_azimuth, stationary_doppler_sigma
 from mmatch.cav.frustum import Projection
 from mmatch.errors import ConfigError
+from mmatch.numeric import lengths, median
 from mmatch.types import CameraModel
 
 MODEL_PATH = Path(__file__).with_name("membership_model.json")
@@ -222,9 +223,9 @@ def candidates(points: np.ndarray, boxes: np.ndarray, camera: CameraModel, proj:
     box_range = b[:, 5].copy()
     for k in np.flatnonzero(near.any(axis=0)):
         sel = near[:, k]
-        box_range[k] = np.median(proj.bev_range[sel])
+        box_range[k] = median(proj.bev_range[sel])
         if mov_c[:, k].any():
-            box_motion[k] = np.median(res[mov_c[:, k]])
+            box_motion[k] = median(res[mov_c[:, k]])
     F = np.column_stack([
         np.abs(gap[ii, jj]), gap[ii, jj],
         np.abs(u[ii, 0] - uc[jj]) / hw[jj], out_u[ii, jj],
@@ -281,12 +282,12 @@ def context_features(cands: Candidates, prob: np.ndarray, owner: np.ndarray, sce
             F[sel, :3] = cap
             continue
         pts = cands.point[sel]
-        d = np.linalg.norm(xy[pts][:, None] - xy[core][None], axis=2)
+        d = lengths(xy[pts][:, None] - xy[core][None])
         d[pts[:, None] == core[None]] = np.inf                    # not the point itself
         F[sel, 0] = np.minimum(d.min(axis=1), cap)
-        F[sel, 1] = np.minimum(np.abs(rng[pts] - np.median(rng[core])), cap)
+        F[sel, 1] = np.minimum(np.abs(rng[pts] - median(rng[core])), cap)
         F[sel, 2] = np.clip(rng[pts] - rng[core].min(), -cap, cap)
-        body = float(np.median(res[core]))
+        body = float(median(res[core]))
         lo, hi = min(0.0, 2 * body), max(0.0, 2 * body)
         F[sel, 3] = (np.maximum(lo - res[pts], 0.0) + np.maximum(res[pts] - hi, 0.0)) / sd[pts]
         F[sel, 8] = np.abs(res[pts] - body) / sd[pts]
