@@ -472,7 +472,7 @@ def box_features(cands: Candidates, prob: np.ndarray, owner: np.ndarray, moving:
     better = b[None, :, 4] > b[:, None, 4]
     np.fill_diagonal(inside, 0.0)
     edge = (b[:, 0] <= 2) | (b[:, 2] >= camera.image_size[0] - 3)
-    F[:] = np.column_stack([b[:, 4], b[:, 4] / max(float(np.median(b[:, 4])), 1e-3),
+    F[:] = np.column_stack([b[:, 4], b[:, 4] / max(float(median(b[:, 4])), 1e-3),
                             np.log(np.maximum(b[:, 5], 0.5)), pts, mov, best, top3, ncand,
                             np.log1p(see), np.where(better, inside, 0.0).max(axis=1), w * b[:, 5] / fx,
                             h * b[:, 5] / fy, w / h, edge.astype(float)])
