@@ -92,7 +92,8 @@ def vehicle_centroids(frame: SharedFrame) -> np.ndarray:
 def _group_sums(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     """(n, 2) float64 sums of `values` (N, 2) per group index 0..n-1, added in their order
     (as np.add.at adds them, at a third of its cost)."""
-    return np.column_stack([np.bincount(group, weights=values[:, k], minlength=n)[:n] for k in range(2)])
+    return np.column_stack([np.bincount(group, weights=values[:, k], minlength=n)[:n]
+                            for k in range(2)])
 
 
 def background_tree(frame: SharedFrame) -> cKDTree | None:
@@ -366,7 +367,7 @@ def _road_speed_consistency(own: SharedFrame, other: SharedFrame, min_cos: float
     Se = speeds(ge, ue, angles[0])                                 # (Va, 4)
     Sc = speeds(gc, uc, angles[1])                                 # (Vb, 4)
     shift = (np.arange(4)[None] - np.arange(4)[:, None]) % 4       # [m, k]: CAV direction k - m
-    Sc_m = Sc[:, shift].transpose(1, 0, 2)                         # (4, Vb, 4) CAV speed along Ego direction k
+    Sc_m = Sc[:, shift].transpose(1, 0, 2)          # (4, Vb, 4) CAV speed along Ego direction k
     diff = np.abs(Se[None, :, None, :] - Sc_m[:, None])            # (4, Va, Vb, 4)
     tol = tol_mps + 0.1 * np.abs(Se[:, None, :])
     valid = np.isfinite(diff)

@@ -231,7 +231,7 @@ def _maha_sq(ca, Sa, cb, Sb, R, t):
     det = s00 * s11
     det -= s01 * s01
     np.maximum(det, f(1e-12), out=det)
-    q = s11                                         # s11 dx dx - 2 s01 dx dy + s00 dy dy, left to right
+    q = s11                                 # s11 dx dx - 2 s01 dx dy + s00 dy dy, left to right
     q *= dx
     q *= dx
     s01 *= 2
@@ -245,8 +245,8 @@ def _maha_sq(ca, Sa, cb, Sb, R, t):
     return q
 
 
-def pair_major_mahalanobis(A: Observations | PairedObservations, B: Observations | None, R: np.ndarray,
-                           t: np.ndarray, with_modes: bool = False):
+def pair_major_mahalanobis(A: Observations | PairedObservations, B: Observations | None,
+                           R: np.ndarray, t: np.ndarray, with_modes: bool = False):
     """`mahalanobis` with the hypotheses last: (Va, Vb, H) distances (and modes), for callers
     that reduce over the vehicles (a reduction over a short last axis is slow in numpy)."""
     P = A if isinstance(A, PairedObservations) else paired(A, B)

@@ -20,7 +20,8 @@ from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_t
                              road_speed_consistency)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.memo import memo
-from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe, pair_major_mahalanobis
+from mmatch.ego.observations import (ObservationModel, Observations, mahalanobis, observe,
+                                     pair_major_mahalanobis)
 from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import distinct_best, se2_to_matrix
 from mmatch.numeric import lengths, median
@@ -160,8 +161,9 @@ class ConsensusMatcher:
         R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree)
         Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
         # the unrefined hypotheses' vehicle scores are the coarse ones (row by row the same)
-        vehicles = np.concatenate([veh_score[top], _vehicle_scores(A, B, alike_of(R_ref), R_ref, t_ref, cfg)])
-        total = vehicles + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
+        refined = _vehicle_scores(A, B, alike_of(R_ref), R_ref, t_ref, cfg)
+        total = np.concatenate([veh_score[top], refined]) \
+            + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
         if prior is not None and cfg.prior_weight:
             total = total + cfg.prior_weight * _prior_agreement(Rr, tr, prior, cfg)
         best = int(np.argmax(total))
@@ -350,8 +352,8 @@ def _pair_hypotheses(A, B, cand, cfg, cost, most):
     p, q = _pairs_of(len(cand))
     i, j, k, l = cand[p, 0], cand[p, 1], cand[q, 0], cand[q, 1]
     ok = (i != k) & (j != l)
-    da = np.linalg.norm(A[i] - A[k], axis=1)
-    db = np.linalg.norm(B[j] - B[l], axis=1)
+    da = lengths(A[i] - A[k])
+    db = lengths(B[j] - B[l])
     ok &= (np.abs(da - db) < cfg.pair_dist_tol_m + cfg.pair_dist_tol_rel * da) & (da > cfg.min_baseline_m)
     i, j, k, l = i[ok], j[ok], k[ok], l[ok]
     if len(i) > most:
@@ -388,8 +390,9 @@ def _vehicle_scores(A: Observations, B: Observations, alike, R, t, cfg):
 
 
 def _vehicle_scores_chunk(A, B, alike, R, t, cfg):
-    # the distances and their reductions with the hypotheses last (numpy reduces short last
-    # axes slowly); the summed closeness per hypothesis as over a (H, Va) array
+    """`_vehicle_scores` of up to 512 hypotheses. The distances and their reductions have the
+    hypotheses last (numpy reduces short last axes slowly); each hypothesis's closeness is
+    summed over a (H, Va) array, as it always was."""
     dist = pair_major_mahalanobis(A, B, R, t)                          # (Va, Vb, H)
     close = dist / cfg.gate_sigma                                      # 1 - dist / gate, at least 0
     np.subtract(1, close, out=close)
@@ -406,9 +409,11 @@ def _vehicle_scores_chunk(A, B, alike, R, t, cfg):
     ego_body_in_cav = ((body[None] - t)[:, None] @ R)[:, 0]            # (H, 2)
     # the sightings of both views (own vehicles at the other's body, other vehicles at the
     # own body) and where each camera looks, each in one call for both
-    sighted = lengths(np.concatenate([Ac[None] - cav_body[:, None], Bt - body], axis=1)) < cfg.sighting_m
+    sighted = lengths(np.concatenate([Ac[None] - cav_body[:, None], Bt - body], axis=1)) \
+        < cfg.sighting_m                                               # (H, Va + Vb)
     a_is_cav, b_is_ego = sighted[:, :Va], sighted[:, Va:]
-    view = _in_view(np.concatenate([A_in_cav, Bt, cav_body[:, None], ego_body_in_cav[:, None]], axis=1), cfg)
+    places = np.concatenate([A_in_cav, Bt, cav_body[:, None], ego_body_in_cav[:, None]], axis=1)
+    view = _in_view(places, cfg)                                       # (H, Va + Vb + 2)
     unpaired = (np.concatenate([dist.min(axis=1), dist.min(axis=0)]) > cfg.gate_sigma).T
     miss = (unpaired & view[:, :-2] & ~sighted).sum(1)
     seen = a_is_cav.any(1).astype(float) * view[:, -2] + b_is_ego.any(1).astype(float) * view[:, -1]
