@@ -184,12 +184,14 @@ class Candidates:
 def candidates(points: np.ndarray, boxes: np.ndarray, camera: CameraModel, proj: Projection,
                residual: np.ndarray, moving: np.ndarray, velocity: np.ndarray | None,
                accuracy: RadarAccuracyConfig = RadarAccuracyConfig(),
-               doppler_sigma: np.ndarray | None = None) -> Candidates:
+               doppler_sigma: np.ndarray | None = None,
+               azimuth_sigma: np.ndarray | None = None) -> Candidates:
     """Every point near every box, with the features the model reads (see FEATURES).
 
     residual / moving: from the ego-motion fit (zeros / False without an estimate);
     velocity: the fitted radar velocity (vx, vy) or None; doppler_sigma: (N,) the points'
-    `stationary_doppler_sigma` under it, when the caller has it already.
+    `stationary_doppler_sigma` under it, azimuth_sigma: (N,) their `sigma_azimuth` (rad),
+    each when the caller has it already.
     """
     n, m = len(points), len(boxes)
     empty = Candidates(np.zeros(0, int), np.zeros(0, int), np.zeros((0, len(FEATURES))))
@@ -197,7 +199,7 @@ def candidates(points: np.ndarray, boxes: np.ndarray, camera: CameraModel, proj:
         return empty
     b = np.asarray(boxes, np.float64)
     fx = float(camera.K[0, 0])
-    sig = sigma_azimuth(points, accuracy)
+    sig = sigma_azimuth(points, accuracy) if azimuth_sigma is None else azimuth_sigma
     if doppler_sigma is not None:
         sd = doppler_sigma
     else:

@@ -159,7 +159,8 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     sig_d = stationary_doppler_sigma(points, ego.velocity, cfg.radar) \
         if ego.ok and (model is not None or cfg.separation.doppler_assign) else None
     if model is not None and proj is not None:
-        cands = candidates(points, vb, camera, proj, ego.residual, moving, ego.velocity, cfg.radar, sig_d)
+        cands = candidates(points, vb, camera, proj, ego.residual, moving, ego.velocity, cfg.radar, sig_d,
+                           sig_az)
         scene = CandidateScene(points, proj, ego.residual, sig_d, vb, camera)
         learned_owner, prob = assign(cands, len(points), model, scene=scene)
         if model.box is not None and len(vb):
