@@ -11,7 +11,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mmatch.ego.memo import memo
-from mmatch.numeric import lengths
+from mmatch.numeric import lengths, median
 from mmatch.shared import SharedFrame
 
 
@@ -94,6 +94,25 @@ def _group_sums(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     (as np.add.at adds them, at a third of its cost)."""
     return np.column_stack([np.bincount(group, weights=values[:, k], minlength=n)[:n]
                             for k in range(2)])
+
+
+TYPICAL_SCORE = 0.8      # a frame's median detection score, lifted to at least this (detection_scores)
+
+
+def detection_scores(frame: SharedFrame, typical: float = TYPICAL_SCORE) -> np.ndarray:
+    """(V,) the frame's detection scores, scaled up so that their median is at least `typical`:
+    a detector calibrated lower overall keeps its ranking without every vehicle looking like a
+    false detection (scores x 0.6 cost RM-net 3 points of pair F1 on perfect separation).
+    Once per frame inside a fusion (ego/memo.py)."""
+    return memo("detection_scores", (frame,), lambda: _lifted_scores(frame, typical), typical)
+
+
+def _lifted_scores(frame: SharedFrame, typical: float) -> np.ndarray:
+    sc = frame.vehicle_boxes[:, 4].astype(float)
+    if len(sc) == 0:
+        return sc
+    med = float(median(sc))
+    return sc * (typical / med if 0 < med < typical else 1.0)
 
 
 def background_tree(frame: SharedFrame) -> cKDTree | None:

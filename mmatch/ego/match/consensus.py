@@ -16,15 +16,14 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree, heading_yaws,
-                             road_speed_consistency)
+from mmatch.ego.base import (TYPICAL_SCORE, Hypotheses, MatchContext, MatchResult, background_tree,
+                             detection_scores, heading_yaws, road_speed_consistency)
 from mmatch.ego.descriptor_scale import scaled_distance
-from mmatch.ego.memo import memo
 from mmatch.ego.observations import (ObservationModel, Observations, mahalanobis, observe,
                                      pair_major_mahalanobis)
 from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import distinct_best, se2_to_matrix
-from mmatch.numeric import lengths, median
+from mmatch.numeric import lengths
 from mmatch.shared import SharedFrame
 
 
@@ -81,7 +80,7 @@ class ConsensusConfig:
     sighting_m: float = 3.5
     body_offset_m: float = 2.3           # radar (front bumper) to vehicle centre
     speed_weight: float = 0.5            # road-speed agreement (+1 / 0 / -1) in likeness units
-    typical_score: float = 0.8           # a frame's median detection score is lifted to at least this
+    typical_score: float = TYPICAL_SCORE  # a frame's median detection score is lifted to at least this
     score_low: float = 0.3               # detection scores map to confidence 0 ... 1 between these
     score_high: float = 0.8
     min_confidence: float = 0.25
@@ -232,18 +231,9 @@ def _yaw_gap(R: np.ndarray, yaws: np.ndarray, per_candidate: bool = False) -> np
 
 
 def _scores(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
-    """(V,) detection scores lifted so that the frame's median is at least `typical_score`:
-    a detector calibrated lower overall keeps its ranking without losing every vehicle.
-    Once per frame inside a fusion (ego/memo.py)."""
-    return memo("detection_scores", (frame,), lambda: _lifted_scores(frame, cfg.typical_score), cfg.typical_score)
-
-
-def _lifted_scores(frame: SharedFrame, typical: float) -> np.ndarray:
-    sc = frame.vehicle_boxes[:, 4].astype(float)
-    if len(sc) == 0:
-        return sc
-    med = float(median(sc))
-    return sc * (typical / med if 0 < med < typical else 1.0)
+    """(V,) the frame's detection scores lifted to a median of at least `typical_score`
+    (base.detection_scores)."""
+    return detection_scores(frame, cfg.typical_score)
 
 
 def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:

@@ -20,7 +20,7 @@ Node features (NODE_DIM = 48), in order:
   35    log1p(radar point count) / 3                 36    has radar points (0/1)
   37    point extent along the line of sight / 3 m   38    extent across it / 3 m
   39    mean Doppler / 20 m/s                        40    ground speed along the line of sight / 20 m/s
-  41    ground speed known (0/1)                     42    detection score (0-1)
+  41    ground speed known (0/1)                     42    detection score (0-1), lifted (base.py)
   43    (camera depth - radar range) / 5 m, 0 without points
   44    box height in metres: canonical box height x depth / 1000 px (shared.py) / 3 m
   45    speed along the own heading / 20 m/s (ground speed over the cosine, 0 when the ray is
@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmatch.ego.base import descriptor_distance, radial_ground_speeds
+from mmatch.ego.base import descriptor_distance, detection_scores, radial_ground_speeds
 from mmatch.ego.observations import Observations, observe
 from mmatch.shared import CANONICAL_FOCAL_PX, SharedFrame
 
@@ -133,7 +133,7 @@ def node_features(frame: SharedFrame, centres: np.ndarray) -> np.ndarray:
     x[:, 40] = np.where(known, g, 0) / SPEED_SCALE_MPS
     x[:, 41] = known
     boxes = np.asarray(frame.vehicle_boxes, np.float64).reshape(-1, 6)
-    x[:, 42] = np.clip(boxes[:, 4], 0, 1)
+    x[:, 42] = np.clip(detection_scores(frame), 0, 1)
     x[:, 43] = np.where(has, np.clip(boxes[:, 5] - r, -10, 10), 0) / 5
     x[:, 44] = np.clip((boxes[:, 3] - boxes[:, 1]) * boxes[:, 5] / CANONICAL_FOCAL_PX, 0, 10) / 3
     v = np.asarray(frame.ego_velocity, float)
