@@ -21,7 +21,7 @@ from mmatch.ego.track import TrackConfig, Tracker
 from mmatch.ego.track.filter import Candidate, pose_of, within_success
 from mmatch.ego.track.objects import ObjectFrame, ObjectTrackConfig, ObjectTracker
 from mmatch.ego.track.predict import Prediction
-from mmatch.shared import SharedFrame
+from mmatch.shared import SharedFrame, with_canonical_background
 
 SOURCE_OWN, SOURCE_OTHER, SOURCE_BOTH = 0, 1, 2
 OWN_EXTRA_HYPOTHESES = 3      # the matcher's other hypotheses the arbiter weighs beside MMatch's aligner
@@ -127,6 +127,7 @@ class Fuser:
         own_objs = _objects(far_side_centres(own), SOURCE_OWN)
         if other is None:
             return FusionResult("single", "no CAV frame", objects=own_objs)
+        own, other = with_canonical_background(own), with_canonical_background(other)
         self.run_deferred(other.sender)          # this CAV's track must have seen its search
         pred = self.tracker.predict(own, other)
         return self._run(own, other, context, pred, own_objs, defer=self.config.track.defer_search)

@@ -6,7 +6,7 @@ Vehicles are indexed 0..V-1; `vehicle_index` maps each vehicle point to its vehi
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -26,6 +26,12 @@ def canonical_boxes(boxes: np.ndarray, K: np.ndarray) -> np.ndarray:
     b[:, [0, 2]] = CANONICAL_FOCAL_PX * (b[:, [0, 2]] - K[0, 2]) / K[0, 0]
     b[:, [1, 3]] = CANONICAL_FOCAL_PX * (b[:, [1, 3]] - K[1, 2]) / K[1, 1]
     return b.astype(np.float32)
+
+
+# The Ego reads a received background in one order whatever the sender's: lexicographic in the
+# cells of this grid (x, then y, then z), the coordinates breaking ties. The CAV side's voxel
+# sketch (cav/background.py, 0.5 m voxels) comes out in this order already.
+BACKGROUND_ORDER_GRID_M = 0.5
 
 
 @dataclass
@@ -72,3 +78,17 @@ class SharedFrame:
     def points_of(self, v: int) -> np.ndarray:
         """The (k, 5) points of vehicle v."""
         return self.vehicle_points[self.vehicle_index == v]
+
+
+def with_canonical_background(frame: SharedFrame) -> SharedFrame:
+    """The frame with its background points in the canonical order (BACKGROUND_ORDER_GRID_M):
+    the frame itself when they are in it already, else a copy. Subsets of the background (the
+    matcher's and the aligner's) then do not depend on the order a sender lists it in."""
+    bg = np.asarray(frame.background)
+    if len(bg) < 2:
+        return frame
+    cells = np.floor(bg[:, :3] / BACKGROUND_ORDER_GRID_M)
+    order = np.lexsort((bg[:, 2], bg[:, 1], bg[:, 0], cells[:, 2], cells[:, 1], cells[:, 0]))
+    if np.array_equal(order, np.arange(len(bg))):
+        return frame
+    return replace(frame, background=bg[order])
