@@ -33,6 +33,7 @@ COMMANDS: dict[str, str] = {
     "keys": "mmatch.edge.commands.keys",
     "train": "mmatch.edge.commands.train",
     "ablation": "mmatch.edge.commands.ablation",
+    "transfer": "mmatch.edge.commands.transfer",
 }
 
 

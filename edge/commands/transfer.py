@@ -1,0 +1,46 @@
+"""`mmatch transfer`: the scenes of a folder again under other cameras, detectors and radars."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+HELP = ("evaluate a folder as it is and with one convention or constant changed at a time (camera "
+        "resolution, point order, detector scores, depth bias, SNR, elevation, returns): what our "
+        "figures hinge on")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from mmatch.transfer import CHECKS
+
+    p.add_argument("folder", help="folder of *.npz scene files (with labels: each check also runs on "
+                                  "perfect separation)")
+    p.add_argument("--checks", default=None,
+                   help=f"comma-separated, from {', '.join(CHECKS)} (default: all)")
+    p.add_argument("--scenes", type=int, default=None, help="the first N scene files only")
+    p.add_argument("--jobs", type=int, default=1, help="worker processes")
+    p.add_argument("--json", help="write the figures here")
+
+
+def run(args: argparse.Namespace) -> int:
+    from mmatch.edge.commands.progress import Progress
+    from mmatch.errors import ConfigError
+    from mmatch.transfer import markdown, parse_checks, run_transfer
+
+    if not Path(args.folder).is_dir():
+        raise ConfigError(f"folder: {args.folder} is not a folder")
+    if args.scenes is not None and args.scenes < 1:
+        raise ConfigError(f"--scenes: {args.scenes} must be at least 1")
+    result = run_transfer(args.folder, parse_checks(args.checks), jobs=args.jobs, max_scenes=args.scenes,
+                          progress=Progress("transfer"))
+    print(f"{result['scenes']} scenes; invariances must change no scene, shifts show what they cost")
+    print(markdown(result))
+    if args.json:
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=2))
+        print(f"wrote {out}")
+    broken = [n for n, e in result["checks"].items() if e["kind"] == "invariance"
+              and (e["pipeline"]["changed_scenes"] or e["labels"]["changed_scenes"])]
+    return 1 if broken else 0

@@ -1,0 +1,199 @@
+"""Transfer checks (`mmatch transfer`): the same scenes with one convention or constant changed.
+
+Our figures come from one simulator. Scene files from other code follow the same format but not
+necessarily our camera, detector or radar: another resolution, another score calibration, a
+biased monocular depth, fewer returns. Each check rewrites both views of every scene one way
+and evaluates them again, with the pipeline and with perfect separation (`--cav labels`):
+
+- invariances, whose results must not change at all: a camera of twice the resolution (K and
+  boxes x 2), the radar points in another order (TI lists them by range; other code however it
+  likes). A changed scene is a bug: the first of these found RM-net reading box heights as if
+  every camera had a 1000 px focal length.
+- shifts beyond the physics family, whose cost is measured: detection scores x 0.6, monocular
+  depth x 0.85 and x 1.15, SNR +10 dB and -6 dB, no elevation (z = 0), half the returns.
+
+Each check is seeded per scene from the file name, so a run is repeatable.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from mmatch.errors import ConfigError
+from mmatch.evaluate import EvalConfig, evaluate_with, report
+from mmatch.scene_io import load_scene
+from mmatch.types import Scene, View
+
+
+def _resolution(factor: float) -> Callable[[View, np.random.Generator], View]:
+    def apply(view: View, rng: np.random.Generator) -> View:
+        K = np.array(view.camera.K, np.float64)
+        K[:2] *= factor
+        w, h = view.camera.image_size
+        boxes = np.array(view.boxes, np.float32)
+        boxes[:, :4] *= factor
+        camera = replace(view.camera, K=K, image_size=(int(round(w * factor)), int(round(h * factor))))
+        return replace(view, boxes=boxes, camera=camera)
+    return apply
+
+
+def _keep_points(view: View, rows: np.ndarray) -> View:
+    labels = None if view.point_labels is None else view.point_labels[rows]
+    return replace(view, points=view.points[rows], point_labels=labels)
+
+
+def _shuffled(view: View, rng: np.random.Generator) -> View:
+    return _keep_points(view, rng.permutation(len(view.points)))
+
+
+def _half_points(view: View, rng: np.random.Generator) -> View:
+    return _keep_points(view, np.flatnonzero(rng.random(len(view.points)) < 0.5))
+
+
+def _box_column(col: int, factor: float) -> Callable[[View, np.random.Generator], View]:
+    def apply(view: View, rng: np.random.Generator) -> View:
+        boxes = np.array(view.boxes, np.float32)
+        boxes[:, col] *= factor
+        return replace(view, boxes=boxes)
+    return apply
+
+
+def _point_column(col: int, offset: float | None) -> Callable[[View, np.random.Generator], View]:
+    def apply(view: View, rng: np.random.Generator) -> View:
+        points = np.array(view.points, np.float32)
+        points[:, col] = 0.0 if offset is None else points[:, col] + offset
+        return replace(view, points=points)
+    return apply
+
+
+@dataclass(frozen=True)
+class Check:
+    """One rewrite of a view: `kind` "invariance" (results must stay the same) or "shift"."""
+
+    name: str
+    kind: str
+    description: str
+    apply: Callable[[View, np.random.Generator], View]
+
+
+CHECKS: dict[str, Check] = {c.name: c for c in (
+    Check("resolution-2x", "invariance", "camera of twice the resolution (K, image and boxes x 2)", _resolution(2.0)),
+    Check("point-order", "invariance", "radar points (and their labels) in a random order", _shuffled),
+    Check("scores-0.6", "shift", "detection scores x 0.6 (a detector calibrated lower)", _box_column(4, 0.6)),
+    Check("depth-0.85", "shift", "monocular depth x 0.85 (a biased depth estimate)", _box_column(5, 0.85)),
+    Check("depth-1.15", "shift", "monocular depth x 1.15", _box_column(5, 1.15)),
+    Check("snr+10", "shift", "SNR + 10 dB (another radar's SNR scale)", _point_column(4, 10.0)),
+    Check("snr-6", "shift", "SNR - 6 dB", _point_column(4, -6.0)),
+    Check("no-elevation", "shift", "z = 0 for every return (a radar without elevation)", _point_column(2, None)),
+    Check("half-points", "shift", "every radar return kept with probability 0.5", _half_points),
+)}
+NONE = "none"
+
+
+def perturb(scene: Scene, check: Check) -> Scene:
+    """Both views of `scene` rewritten by `check`, seeded from the scene's name (repeatable)."""
+    rng = np.random.default_rng(zlib.crc32(f"{scene.name}/{check.name}".encode()))
+    return replace(scene, ego=check.apply(scene.ego, rng), cav=check.apply(scene.cav, rng))
+
+
+def parse_checks(text: str | None) -> list[str]:
+    """Check names from a comma-separated list (None: every check); unknown names raise ConfigError."""
+    names = list(CHECKS) if text is None else [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in CHECKS]
+    if unknown or not names:
+        raise ConfigError(f"--checks: unknown {unknown or 'empty list'}; choose from {', '.join(CHECKS)}")
+    return names
+
+
+def _evaluate(task: tuple[str, str, EvalConfig]) -> dict:
+    path, name, cfg = task
+    scene = load_scene(path)
+    if name != NONE:
+        scene = perturb(scene, CHECKS[name])
+    r, _ = evaluate_with(scene, cfg)
+    return {k: r[k] for k in ("status", "box_pairs", "T_ego_cav", "tp", "predicted", "gt_pairs", "rre_deg",
+                              "rte_m", "success", "payload_bytes", "stages_ms", "confidence", "candidate")}
+
+
+def _changed(a: list[dict], b: list[dict]) -> int:
+    """How many scenes differ in status, pairs or transform (1 mm / 1e-6) between two runs."""
+    def same(x: dict, y: dict) -> bool:
+        if x["status"] != y["status"] or x["box_pairs"] != y["box_pairs"]:
+            return False
+        if (x["T_ego_cav"] is None) != (y["T_ego_cav"] is None):
+            return False
+        return x["T_ego_cav"] is None or np.allclose(x["T_ego_cav"], y["T_ego_cav"], atol=1e-3)
+    return sum(not same(x, y) for x, y in zip(a, b))
+
+
+def _summary(rep: dict) -> dict:
+    p, r = rep["pair_precision"], rep["pair_recall"]
+    at = {round(e["coverage"], 2): e for e in rep["risk_coverage"]}
+    return {"pair_f1": 2 * p * r / (p + r) if p + r else 0.0, "success_rate": rep["success_rate"],
+            "coverage": rep["coverage"], "gross_at_0.8": at.get(0.8, {}).get("gross_rate")}
+
+
+def run_transfer(folder: str | Path, checks: list[str], cfg: EvalConfig = EvalConfig(), jobs: int = 1,
+                 max_scenes: int | None = None, progress: Callable[[int, int], None] | None = None) -> dict:
+    """Evaluate the folder's scenes as they are and under each check, with the pipeline and with
+    perfect separation: {"scenes": n, "checks": {name: {"kind", "description", cav: summary
+    (+ "changed_scenes": scenes whose status, pairs or transform differ from the unchanged run)}}}."""
+    files = sorted(str(p) for p in Path(folder).glob("*.npz"))[:max_scenes]
+    if not files:
+        raise ConfigError(f"folder: no *.npz scene files in {folder}")
+    names = [NONE] + [n for n in checks if n != NONE]
+    tasks = [(f, n, replace(cfg, cav=cav)) for n in names for cav in ("pipeline", "labels") for f in files]
+    results: list[dict] = []
+    with ProcessPoolExecutor(max_workers=jobs) if jobs > 1 else _Serial() as pool:
+        for k, r in enumerate(pool.map(_evaluate, tasks, chunksize=4)):
+            results.append(r)
+            if progress:
+                progress(k + 1, len(tasks))
+    n = len(files)
+    out: dict = {"scenes": n, "checks": {}}
+    for i, name in enumerate(names):
+        check = CHECKS.get(name)
+        entry = {"kind": check.kind if check else "reference",
+                 "description": check.description if check else "the scenes as they are"}
+        for j, cav in enumerate(("pipeline", "labels")):
+            block = results[(2 * i + j) * n:(2 * i + j + 1) * n]
+            entry[cav] = _summary(report(block, replace(cfg, cav=cav)))
+            entry[cav]["changed_scenes"] = _changed(results[j * n:(j + 1) * n], block)
+        out["checks"][name] = entry
+    return out
+
+
+class _Serial:
+    """A stand-in for a process pool that maps in this process."""
+
+    def __enter__(self) -> "_Serial":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def map(self, fn, items, chunksize: int = 1):
+        return map(fn, items)
+
+
+def markdown(result: dict) -> str:
+    """The README table: per check, pair F1 and success with the pipeline and with perfect
+    separation, the change from the unchanged scenes, and for invariances whether they hold."""
+    ref = result["checks"][NONE]
+    rows = ["| check | kind | pipeline F1 / success | labels F1 / success | pipeline F1 change (points) | "
+            "scenes changed (pipeline / labels) |", "| --- | --- | --- | --- | --- | --- |"]
+    for name, e in result["checks"].items():
+        p, lab = e["pipeline"], e["labels"]
+        delta = 100 * (p["pair_f1"] - ref["pipeline"]["pair_f1"])
+        changed = f"{p['changed_scenes']} / {lab['changed_scenes']}"
+        if e["kind"] == "invariance":
+            changed += " (holds)" if p["changed_scenes"] == lab["changed_scenes"] == 0 else " (BROKEN)"
+        rows.append(f"| {name} | {e['kind']} | {p['pair_f1']:.3f} / {p['success_rate']:.3f} | "
+                    f"{lab['pair_f1']:.3f} / {lab['success_rate']:.3f} | {delta:+.1f} | {changed} |")
+    return "\n".join(rows)
