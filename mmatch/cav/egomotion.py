@@ -139,10 +139,13 @@ def fit_egomotion(points: np.ndarray, config: EgoMotionConfig | None = None,
                             f"azimuth spread {spread:.2f} deg < {cfg.min_bearing_spread_deg}", thr_all)
 
     # ---- RANSAC: all 2-point hypotheses at once (draw extra, keep well-conditioned pairs)
+    # the pairs are drawn from the points in a canonical order (x, y, z, Doppler): the same
+    # frame listed in another order (TI lists by range, other code as it likes) gives the same fit
     m = len(p)
     rng = np.random.default_rng(cfg.seed + m)
-    i = rng.integers(0, m, 3 * cfg.hypotheses)
-    j = rng.integers(0, m, 3 * cfg.hypotheses)
+    canon = np.lexsort((d, p[:, 2], p[:, 1], p[:, 0]))
+    i = canon[rng.integers(0, m, 3 * cfg.hypotheses)]
+    j = canon[rng.integers(0, m, 3 * cfg.hypotheses)]
     det = A[i, 0] * A[j, 1] - A[i, 1] * A[j, 0]       # = cos el_i cos el_j sin(az_j - az_i)
     good = np.flatnonzero(np.abs(det) > cfg.min_pair_sin)[: cfg.hypotheses]
     if len(good) == 0:

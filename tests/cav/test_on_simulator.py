@@ -84,3 +84,17 @@ def test_shared_vehicle_points_against_the_point_labels(observations):
     assert recall >= 0.5            # the camera (+-33 deg) sees less than the radar (+-60 deg)
     assert parked_right / parked_all >= 0.4
     assert max(sizes) <= 9 * 1024
+
+
+def test_the_order_of_the_points_does_not_change_the_fit(observations):
+    """TI lists points by range, other code as it likes: the RANSAC draws from a canonical order,
+    so a simulated frame listed backwards or shuffled fits the same velocity and flags the same
+    points (before, 82 of 400 wide-physics views differed, by up to 9 mm/s and one background
+    point of the shared sketch)."""
+    for k, (o, _) in enumerate(observations):
+        e = fit_egomotion(o.points)
+        for perm in (np.arange(len(o.points))[::-1], np.random.default_rng(k).permutation(len(o.points))):
+            e2 = fit_egomotion(o.points[perm])
+            assert e2.ok == e.ok
+            np.testing.assert_allclose(e2.velocity, e.velocity, rtol=0, atol=1e-9)
+            np.testing.assert_array_equal(e2.moving, e.moving[perm])
