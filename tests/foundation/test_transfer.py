@@ -84,3 +84,16 @@ def test_the_command_prints_the_table_and_writes_json(hard_dir, tmp_path, capsys
     assert main(["transfer", str(hard_dir), "--checks", "nonsense"]) == 2
     assert "--checks: unknown" in capsys.readouterr().err
     assert main(["transfer", str(tmp_path / "missing")]) == 2
+
+
+def test_a_broken_invariance_is_reported_and_fails_the_command(hard_dir, monkeypatch, capsys):
+    """An "invariance" that does change the answer (here: every camera depth halved) must show as
+    BROKEN and make the command exit 1, so that CI can run it as a gate."""
+    import mmatch.transfer as T
+
+    halve = T.Check("depth-halved", "invariance", "not an invariance at all", T._box_column(5, 0.5))
+    monkeypatch.setitem(T.CHECKS, halve.name, halve)
+    out = run_transfer(hard_dir, ["depth-halved"], max_scenes=4)
+    assert out["checks"]["depth-halved"]["pipeline"]["changed_scenes"] > 0
+    assert main(["transfer", str(hard_dir), "--checks", "depth-halved", "--scenes", "4"]) == 1
+    assert "(BROKEN)" in capsys.readouterr().out
