@@ -211,8 +211,8 @@ class InputConfig:
 
     Points farther than max_range_m (any coordinate), with |doppler| above max_doppler_mps,
     or non-finite, are dropped; boxes with a non-finite value or descriptor, a score
-    outside 0-1, a depth outside (0, max_range_m] or a corner beyond max_pixel are not
-    vehicles. The limits keep every product of `process_view` within the wire format
+    outside 0-1, a depth outside (0, max_range_m] or a corner beyond max_pixel (in the camera's
+    pixels or in the canonical image the wire carries, shared.py) are not vehicles. The limits keep every product of `process_view` within the wire format
     (+-327 m, +-327 m/s, +-16383 px), so encoding it cannot fail.
     """
 

@@ -146,6 +146,7 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
             & (boxes[:, 4] >= max(cfg.separation.min_box_score, 0.0)) & (boxes[:, 4] <= 1.0) \
             & (boxes[:, 5] > 0) & (boxes[:, 5] <= lim.max_range_m) \
             & np.all(np.abs(boxes[:, :4]) <= lim.max_pixel, axis=1) \
+            & np.all(np.abs(canonical_boxes(boxes, camera.K)[:, :4]) <= lim.max_pixel, axis=1) \
             & (boxes[:, 2] >= boxes[:, 0]) & (boxes[:, 3] >= boxes[:, 1])
     vbox = np.flatnonzero(box_ok).astype(np.int32)          # vehicle v <-> box vbox[v]
     vbox = vbox[~duplicates(boxes[vbox], cfg.plausibility)]  # second boxes on one vehicle

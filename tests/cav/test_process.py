@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -164,6 +166,22 @@ def test_wrong_shapes_raise_cav_input_error(points, boxes, features):
     f = make_frame(0)
     with pytest.raises(CavInputError):
         process_view(points, boxes, features, f.camera, 0.8, 1.0)
+
+
+def test_a_box_the_canonical_image_cannot_carry_is_not_shared():
+    """Boxes go on the wire in the canonical image (focal 1000 px): a camera of short focal
+    length makes a corner within max_pixel of its own image too far out there, which the
+    encoder would refuse. Such a box is no vehicle; the frame stays encodable."""
+    f = make_frame(4, n_moving=3)
+    K = f.camera.K.copy()
+    K[0, 0] = K[1, 1] = 400.0
+    cam = replace(f.camera, K=K)
+    boxes = f.boxes.copy()
+    boxes[0, 2] = 15000.0                                  # 1000 x (15000 - cx) / 400 > 16383 canonical px
+    frame, _ = process_view(f.points, boxes, f.features, cam, f.radar_height, 0.0)
+    assert 0 not in frame.vehicle_box_index.tolist()
+    assert np.abs(frame.vehicle_boxes[:, :4]).max() <= 16000
+    decode(encode(frame))
 
 
 def test_without_an_ego_motion_estimate_boxes_keep_their_points():
