@@ -11,7 +11,15 @@ from mmatch.edge.cli import main
 from mmatch.errors import ConfigError
 from mmatch.scene_io import load_scene
 from mmatch.shared import SharedFrame, with_canonical_background
+from mmatch.sim.generate import generate
 from mmatch.transfer import CHECKS, parse_checks, perturb, run_transfer
+
+
+@pytest.fixture(scope="module")
+def wide_hard_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("wide-hard")
+    generate(out, 80, seed=17, mode="hard", jobs=1, physics="wide")
+    return out
 
 
 def test_each_check_rewrites_both_views_as_described(hard_dir):
@@ -59,6 +67,16 @@ def test_invariances_hold_and_shifts_are_measured(hard_dir, tmp_path):
         assert e["pipeline"] == dict(out["checks"]["none"]["pipeline"], changed_scenes=0)
     half = out["checks"]["half-points"]["pipeline"]
     assert half["changed_scenes"] > 0 and 0 <= half["pair_f1"] <= 1 and 0 <= half["success_rate"] <= 1
+
+
+def test_invariances_hold_on_wide_hard_scenes(wide_hard_dir):
+    """The gate on what the physics family does not vary: 80 wide hard scenes through a camera
+    of twice the resolution and with their points shuffled give the same status, pairs and
+    transform in every scene, with our CAV side and with perfect separation."""
+    out = run_transfer(wide_hard_dir, ["resolution-2x", "point-order"], jobs=2)
+    for name in ("resolution-2x", "point-order"):
+        e = out["checks"][name]
+        assert (e["pipeline"]["changed_scenes"], e["labels"]["changed_scenes"]) == (0, 0), (name, e)
 
 
 def test_the_ego_reads_a_background_in_one_order():
