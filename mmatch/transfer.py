@@ -7,7 +7,7 @@ and evaluates them again, with the pipeline and with perfect separation (`--cav 
 
 - invariances, whose results must not change at all: a camera of twice the resolution (K and
   boxes x 2), the radar points in another order (TI lists them by range; other code however it
-  likes). A changed scene is a bug: the first of these found RM-net reading box heights as if
+  likes), the detections in another order (a detector lists them by score). A changed scene is a bug: the first of these found RM-net reading box heights as if
   every camera had a 1000 px focal length.
 - shifts beyond the physics family, whose cost is measured: detection scores x 0.6, monocular
   depth x 0.85 and x 1.15, SNR +10 dB and -6 dB, no elevation (z = 0), half the returns.
@@ -72,19 +72,34 @@ def _point_column(col: int, offset: float | None) -> Callable[[View, np.random.G
     return apply
 
 
+def _box_permutation(view: View, rng: np.random.Generator) -> np.ndarray:
+    return rng.permutation(len(view.boxes))
+
+
+def _reordered_boxes(view: View, perm: np.ndarray) -> View:
+    """The view with its detections (boxes, descriptors, ids) listed as perm (new k = old perm[k])."""
+    ids = None if view.box_ids is None else view.box_ids[perm]
+    return replace(view, boxes=view.boxes[perm], features=view.features[perm], box_ids=ids)
+
+
 @dataclass(frozen=True)
 class Check:
-    """One rewrite of a view: `kind` "invariance" (results must stay the same) or "shift"."""
+    """One rewrite of a view: `kind` "invariance" (results must stay the same) or "shift".
+    `apply` rewrites a view; `box_order`, when given instead, draws a new order of its
+    detections (the true pairs and the reported ones are mapped through it)."""
 
     name: str
     kind: str
     description: str
-    apply: Callable[[View, np.random.Generator], View]
+    apply: Callable[[View, np.random.Generator], View] | None = None
+    box_order: Callable[[View, np.random.Generator], np.ndarray] | None = None
 
 
 CHECKS: dict[str, Check] = {c.name: c for c in (
     Check("resolution-2x", "invariance", "camera of twice the resolution (K, image and boxes x 2)", _resolution(2.0)),
     Check("point-order", "invariance", "radar points (and their labels) in a random order", _shuffled),
+    Check("box-order", "invariance", "detections (boxes, descriptors, ids) in a random order",
+          box_order=_box_permutation),
     Check("scores-0.6", "shift", "detection scores x 0.6 (a detector calibrated lower)", _box_column(4, 0.6)),
     Check("depth-0.85", "shift", "monocular depth x 0.85 (a biased depth estimate)", _box_column(5, 0.85)),
     Check("depth-1.15", "shift", "monocular depth x 1.15", _box_column(5, 1.15)),
@@ -97,9 +112,23 @@ NONE = "none"
 
 
 def perturb(scene: Scene, check: Check) -> Scene:
-    """Both views of `scene` rewritten by `check`, seeded from the scene's name (repeatable)."""
+    """Both views of `scene` rewritten by `check`, seeded from the scene's name (repeatable);
+    the true pairs follow the detections when the check reorders them."""
+    return _perturbed(scene, check)[0]
+
+
+def _perturbed(scene: Scene, check: Check) -> tuple[Scene, tuple[np.ndarray, np.ndarray]]:
+    """`perturb`, and each view's order of its detections (new k = original order[k])."""
     rng = np.random.default_rng(zlib.crc32(f"{scene.name}/{check.name}".encode()))
-    return replace(scene, ego=check.apply(scene.ego, rng), cav=check.apply(scene.cav, rng))
+    if check.box_order is None:
+        orders = (np.arange(len(scene.ego.boxes)), np.arange(len(scene.cav.boxes)))
+        return replace(scene, ego=check.apply(scene.ego, rng), cav=check.apply(scene.cav, rng)), orders
+    orders = (check.box_order(scene.ego, rng), check.box_order(scene.cav, rng))
+    new_of = [np.argsort(o) for o in orders]                       # original index -> new index
+    pairs = np.asarray(scene.gt_pairs, np.int64).reshape(-1, 2)
+    gt = np.column_stack([new_of[0][pairs[:, 0]], new_of[1][pairs[:, 1]]]).astype(np.int32)
+    return replace(scene, ego=_reordered_boxes(scene.ego, orders[0]), cav=_reordered_boxes(scene.cav, orders[1]),
+                   gt_pairs=gt), orders
 
 
 def parse_checks(text: str | None) -> list[str]:
@@ -114,11 +143,16 @@ def parse_checks(text: str | None) -> list[str]:
 def _evaluate(task: tuple[str, str, EvalConfig]) -> dict:
     path, name, cfg = task
     scene = load_scene(path)
+    orders = None
     if name != NONE:
-        scene = perturb(scene, CHECKS[name])
+        scene, orders = _perturbed(scene, CHECKS[name])
     r, _ = evaluate_with(scene, cfg)
-    return {k: r[k] for k in ("status", "box_pairs", "T_ego_cav", "tp", "predicted", "gt_pairs", "rre_deg",
-                              "rte_m", "success", "payload_bytes", "stages_ms", "confidence", "candidate")}
+    out = {k: r[k] for k in ("status", "box_pairs", "T_ego_cav", "tp", "predicted", "gt_pairs", "rre_deg",
+                             "rte_m", "success", "payload_bytes", "stages_ms", "confidence", "candidate")}
+    if orders is not None:                          # the reported pairs in the file's box indices
+        out["box_pairs"] = [[int(orders[0][a]), int(orders[1][b])] for a, b in out["box_pairs"]]
+    out["box_pairs"] = sorted(out["box_pairs"])
+    return out
 
 
 def _changed(a: list[dict], b: list[dict]) -> int:

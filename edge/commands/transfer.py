@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 HELP = ("evaluate a folder as it is and with one convention or constant changed at a time (camera "
-        "resolution, point order, detector scores, depth bias, SNR, elevation, returns): what our "
+        "resolution, point and detection order, detector scores, depth bias, SNR, elevation, returns): what our "
         "figures hinge on")
 
 

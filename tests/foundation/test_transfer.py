@@ -34,6 +34,13 @@ def test_each_check_rewrites_both_views_as_described(hard_dir):
     assert not np.array_equal(shuffled.ego.points, s.ego.points)
     rows = lambda v: sorted(map(tuple, np.column_stack([v.points, v.point_labels])))  # noqa: E731
     assert rows(shuffled.ego) == rows(s.ego) and rows(shuffled.cav) == rows(s.cav)
+    moved = perturb(s, CHECKS["box-order"])
+    assert not np.array_equal(moved.cav.boxes, s.cav.boxes)
+    assert len(s.gt_pairs) >= 1
+    for (a, b), (a2, b2) in zip(s.gt_pairs, moved.gt_pairs):      # the true pairs follow their boxes
+        np.testing.assert_array_equal(moved.ego.boxes[a2], s.ego.boxes[a])
+        np.testing.assert_array_equal(moved.cav.features[b2], s.cav.features[b])
+        assert moved.cav.box_ids[b2] == s.cav.box_ids[b]
     half = perturb(s, CHECKS["half-points"])
     assert 0.3 < len(half.ego.points) / len(s.ego.points) < 0.7
     assert set(map(tuple, half.ego.points)) <= set(map(tuple, s.ego.points))
@@ -71,10 +78,11 @@ def test_invariances_hold_and_shifts_are_measured(hard_dir, tmp_path):
 
 def test_invariances_hold_on_wide_hard_scenes(wide_hard_dir):
     """The gate on what the physics family does not vary: 80 wide hard scenes through a camera
-    of twice the resolution and with their points shuffled give the same status, pairs and
-    transform in every scene, with our CAV side and with perfect separation."""
-    out = run_transfer(wide_hard_dir, ["resolution-2x", "point-order"], jobs=2)
-    for name in ("resolution-2x", "point-order"):
+    of twice the resolution, with their points shuffled and with their detections shuffled give
+    the same status, pairs and transform in every scene, with our CAV side and with perfect
+    separation."""
+    out = run_transfer(wide_hard_dir, ["resolution-2x", "point-order", "box-order"], jobs=2)
+    for name in ("resolution-2x", "point-order", "box-order"):
         e = out["checks"][name]
         assert (e["pipeline"]["changed_scenes"], e["labels"]["changed_scenes"]) == (0, 0), (name, e)
 
