@@ -7,8 +7,9 @@ and evaluates them again, with the pipeline and with perfect separation (`--cav 
 
 - invariances, whose results must not change at all: a camera of twice the resolution (K and
   boxes x 2), the radar points in another order (TI lists them by range; other code however it
-  likes), the detections in another order (a detector lists them by score). A changed scene is a bug: the first of these found RM-net reading box heights as if
-  every camera had a 1000 px focal length.
+  likes), the detections in another order (a detector lists them by score). A changed scene
+  is a bug: the first of these found RM-net reading box heights as if every camera had a
+  1000 px focal length.
 - shifts beyond the physics family, whose cost is measured: detection scores x 0.6, monocular
   depth x 0.85 and x 1.15, SNR +10 dB and -6 dB, no elevation (z = 0), half the returns.
 
@@ -38,7 +39,8 @@ def _resolution(factor: float) -> Callable[[View, np.random.Generator], View]:
         w, h = view.camera.image_size
         boxes = np.array(view.boxes, np.float32)
         boxes[:, :4] *= factor
-        camera = replace(view.camera, K=K, image_size=(int(round(w * factor)), int(round(h * factor))))
+        size = (int(round(w * factor)), int(round(h * factor)))
+        camera = replace(view.camera, K=K, image_size=size)
         return replace(view, boxes=boxes, camera=camera)
     return apply
 
@@ -96,16 +98,21 @@ class Check:
 
 
 CHECKS: dict[str, Check] = {c.name: c for c in (
-    Check("resolution-2x", "invariance", "camera of twice the resolution (K, image and boxes x 2)", _resolution(2.0)),
-    Check("point-order", "invariance", "radar points (and their labels) in a random order", _shuffled),
+    Check("resolution-2x", "invariance", "camera of twice the resolution (K, image and boxes x 2)",
+          _resolution(2.0)),
+    Check("point-order", "invariance", "radar points (and their labels) in a random order",
+          _shuffled),
     Check("box-order", "invariance", "detections (boxes, descriptors, ids) in a random order",
           box_order=_box_permutation),
-    Check("scores-0.6", "shift", "detection scores x 0.6 (a detector calibrated lower)", _box_column(4, 0.6)),
-    Check("depth-0.85", "shift", "monocular depth x 0.85 (a biased depth estimate)", _box_column(5, 0.85)),
+    Check("scores-0.6", "shift", "detection scores x 0.6 (a detector calibrated lower)",
+          _box_column(4, 0.6)),
+    Check("depth-0.85", "shift", "monocular depth x 0.85 (a biased depth estimate)",
+          _box_column(5, 0.85)),
     Check("depth-1.15", "shift", "monocular depth x 1.15", _box_column(5, 1.15)),
     Check("snr+10", "shift", "SNR + 10 dB (another radar's SNR scale)", _point_column(4, 10.0)),
     Check("snr-6", "shift", "SNR - 6 dB", _point_column(4, -6.0)),
-    Check("no-elevation", "shift", "z = 0 for every return (a radar without elevation)", _point_column(2, None)),
+    Check("no-elevation", "shift", "z = 0 for every return (a radar without elevation)",
+          _point_column(2, None)),
     Check("half-points", "shift", "every radar return kept with probability 0.5", _half_points),
 )}
 NONE = "none"
@@ -122,13 +129,14 @@ def _perturbed(scene: Scene, check: Check) -> tuple[Scene, tuple[np.ndarray, np.
     rng = np.random.default_rng(zlib.crc32(f"{scene.name}/{check.name}".encode()))
     if check.box_order is None:
         orders = (np.arange(len(scene.ego.boxes)), np.arange(len(scene.cav.boxes)))
-        return replace(scene, ego=check.apply(scene.ego, rng), cav=check.apply(scene.cav, rng)), orders
+        views = check.apply(scene.ego, rng), check.apply(scene.cav, rng)
+        return replace(scene, ego=views[0], cav=views[1]), orders
     orders = (check.box_order(scene.ego, rng), check.box_order(scene.cav, rng))
     new_of = [np.argsort(o) for o in orders]                       # original index -> new index
     pairs = np.asarray(scene.gt_pairs, np.int64).reshape(-1, 2)
     gt = np.column_stack([new_of[0][pairs[:, 0]], new_of[1][pairs[:, 1]]]).astype(np.int32)
-    return replace(scene, ego=_reordered_boxes(scene.ego, orders[0]), cav=_reordered_boxes(scene.cav, orders[1]),
-                   gt_pairs=gt), orders
+    ego, cav = _reordered_boxes(scene.ego, orders[0]), _reordered_boxes(scene.cav, orders[1])
+    return replace(scene, ego=ego, cav=cav, gt_pairs=gt), orders
 
 
 def parse_checks(text: str | None) -> list[str]:
@@ -182,7 +190,8 @@ def run_transfer(folder: str | Path, checks: list[str], cfg: EvalConfig = EvalCo
     if not files:
         raise ConfigError(f"folder: no *.npz scene files in {folder}")
     names = [NONE] + [n for n in checks if n != NONE]
-    tasks = [(f, n, replace(cfg, cav=cav)) for n in names for cav in ("pipeline", "labels") for f in files]
+    tasks = [(f, n, replace(cfg, cav=cav))
+             for n in names for cav in ("pipeline", "labels") for f in files]
     results: list[dict] = []
     with ProcessPoolExecutor(max_workers=jobs) if jobs > 1 else _Serial() as pool:
         for k, r in enumerate(pool.map(_evaluate, tasks, chunksize=4)):

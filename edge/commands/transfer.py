@@ -6,9 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
-HELP = ("evaluate a folder as it is and with one convention or constant changed at a time (camera "
-        "resolution, point and detection order, detector scores, depth bias, SNR, elevation, returns): what our "
-        "figures hinge on")
+HELP = ("evaluate a folder as it is and with one convention or constant changed at a time "
+        "(camera resolution, point and detection order, detector scores, depth bias, SNR, "
+        "elevation, returns): what our figures hinge on")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
