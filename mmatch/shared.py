@@ -10,6 +10,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from mmatch.numeric import median
 from mmatch.types import DESCRIPTOR_DIM
 
 # The shared frame's box corners are those of a pinhole camera of this focal length with its
@@ -26,6 +27,22 @@ def canonical_boxes(boxes: np.ndarray, K: np.ndarray) -> np.ndarray:
     b[:, [0, 2]] = CANONICAL_FOCAL_PX * (b[:, [0, 2]] - K[0, 2]) / K[0, 0]
     b[:, [1, 3]] = CANONICAL_FOCAL_PX * (b[:, [1, 3]] - K[1, 2]) / K[1, 1]
     return b.astype(np.float32)
+
+
+# A frame's median detection score is read as at least this (`lifted_scores`).
+TYPICAL_SCORE = 0.8
+
+
+def lifted_scores(scores: np.ndarray, typical: float = TYPICAL_SCORE) -> np.ndarray:
+    """(V,) float64 detection scores of one frame scaled up so that their median is at least
+    `typical`: a detector calibrated lower overall keeps its ranking without every vehicle
+    looking like a false detection (scores x 0.6 cost RM-net 3 points of pair F1 on perfect
+    separation). Both sides read scores through this."""
+    sc = np.asarray(scores, np.float64)
+    if len(sc) == 0:
+        return sc
+    med = float(median(sc))
+    return sc * (typical / med if 0 < med < typical else 1.0)
 
 
 # The Ego reads a received background in one order whatever the sender's: lexicographic in the

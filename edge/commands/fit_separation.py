@@ -19,6 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-context", dest="context", action="store_false",
                    help="skip the context stage (each point judged again against its box's core; in its "
                         "place the CAV side keeps each vehicle's main DBSCAN cluster)")
+    p.add_argument("--box-only", action="store_true",
+                   help="keep the membership stages of the model file --out names (default: the packaged "
+                        "one) and refit only the false-detection model on them")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -26,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
 
     from mmatch.cav.membership import (CONTEXT_FEATURES, FEATURES, MODEL_PATH, box_training_rows,
                                        context_training_pairs, fit_box_model, fit_membership,
-                                       labelled_candidates, training_pairs)
+                                       labelled_candidates, load_model, training_pairs)
     from mmatch.errors import ParseError
     from mmatch.scene_io import load_scene
 
@@ -39,6 +42,19 @@ def run(args: argparse.Namespace) -> int:
             s = load_scene(f)
             views += [s.ego, s.cav]
     prepared = labelled_candidates(views)         # each view's ego-motion and candidates, once
+    out = Path(args.out) if args.out else MODEL_PATH
+    if args.box_only:
+        if not out.is_file():
+            raise ParseError(f"--box-only: {out} holds no membership model to keep")
+        model = load_model(str(out))
+        Xb, yb = box_training_rows(views, model, prepared=prepared)
+        try:
+            model = replace(model, box=fit_box_model(Xb, yb, args.box_threshold))
+        except ValueError as exc:
+            raise ParseError(str(exc)) from exc
+        out.write_text(model.to_json() + "\n")
+        print(f"refit the false-detection model on {len(Xb)} boxes, membership kept; wrote {out}")
+        return 0
     X, y = training_pairs(views, prepared=prepared)
     try:
         model = fit_membership(X, y, seed=args.seed, threshold=args.threshold, meta={"folders": args.folders})
@@ -57,7 +73,6 @@ def run(args: argparse.Namespace) -> int:
         model = replace(model, box=fit_box_model(Xb, yb, args.box_threshold))
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
-    out = Path(args.out) if args.out else MODEL_PATH
     out.write_text(model.to_json() + "\n")
     p = model.box.probability(Xb)
     drop = p < model.box.threshold

@@ -39,6 +39,7 @@ from mmatch.cav.accuracy import RadarAccuracyConfig, sigma_azimuth, stationary_d
 from mmatch.cav.frustum import Projection
 from mmatch.errors import ConfigError
 from mmatch.numeric import lengths, median
+from mmatch.shared import lifted_scores
 from mmatch.types import CameraModel
 
 MODEL_PATH = Path(__file__).with_name("membership_model.json")
@@ -443,8 +444,9 @@ BOX_FEATURES: tuple[str, ...] = (
 def box_features(cands: Candidates, prob: np.ndarray, owner: np.ndarray, moving: np.ndarray, boxes: np.ndarray,
                  camera: CameraModel, proj: Projection) -> np.ndarray:
     """(M, len(BOX_FEATURES)) what the radar and the box itself say about each box being a vehicle:
-    its score, how many returns it won and how sure, whether the radar sees past it, whether it
-    lies inside a better box, and how big it is in metres at its depth."""
+    its score (lifted to a frame median of at least 0.8, shared.lifted_scores), how many returns
+    it won and how sure, whether the radar sees past it, whether it lies inside a better box, and
+    how big it is in metres at its depth."""
     m = len(boxes)
     b = np.asarray(boxes, np.float64)
     F = np.zeros((m, len(BOX_FEATURES)))
@@ -474,7 +476,7 @@ def box_features(cands: Candidates, prob: np.ndarray, owner: np.ndarray, moving:
     better = b[None, :, 4] > b[:, None, 4]
     np.fill_diagonal(inside, 0.0)
     edge = (b[:, 0] <= 2) | (b[:, 2] >= camera.image_size[0] - 3)
-    F[:] = np.column_stack([b[:, 4], b[:, 4] / max(float(median(b[:, 4])), 1e-3),
+    F[:] = np.column_stack([lifted_scores(b[:, 4]), b[:, 4] / max(float(median(b[:, 4])), 1e-3),
                             np.log(np.maximum(b[:, 5], 0.5)), pts, mov, best, top3, ncand,
                             np.log1p(see), np.where(better, inside, 0.0).max(axis=1), w * b[:, 5] / fx,
                             h * b[:, 5] / fy, w / h, edge.astype(float)])

@@ -17,6 +17,8 @@ from mmatch.errors import ConfigError
 from mmatch.scene_io import load_scene
 from mmatch.sim.generate import generate
 
+from .synth import make_camera
+
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory):
@@ -129,6 +131,42 @@ def test_fit_separation_fits_both_stages_and_can_leave_the_context_out(folder, t
     out2 = tmp_path / "first.json"
     assert main(["fit-separation", str(folder), "--out", str(out2), "--no-context"]) == 0
     assert load_model(str(out2)).context is None
+
+
+def test_box_only_refits_the_false_detection_model_and_keeps_the_membership(folder, tmp_path, capsys):
+    out = tmp_path / "model.json"
+    assert main(["fit-separation", str(folder), "--out", str(out)]) == 0
+    before = load_model(str(out))
+    text = out.read_text()
+    assert main(["fit-separation", str(folder), "--out", str(out), "--box-only", "--box-threshold", "0.3"]) == 0
+    assert "membership kept" in capsys.readouterr().out
+    after = MembershipModel.from_json(out.read_text(), str(out))
+    for (W, b), (W2, b2) in zip(before.layers + before.context.layers, after.layers + after.context.layers):
+        np.testing.assert_array_equal(W, W2)
+        np.testing.assert_array_equal(b, b2)
+    assert after.box.threshold == 0.3 and out.read_text() != text
+    assert main(["fit-separation", str(folder), "--out", str(tmp_path / "none.json"), "--box-only"]) == 2
+    assert "--box-only" in capsys.readouterr().err
+
+
+def test_the_false_detection_model_reads_scores_lifted_to_a_typical_median():
+    """A detector calibrated lower overall (every score x 0.6) must not make every box look false:
+    the score the box model reads is lifted to a frame median of 0.8, its ratio to the median is
+    scale-free already."""
+    from mmatch.cav.membership import Candidates, box_features
+    from mmatch.cav.frustum import Projection
+
+    cam = make_camera()
+    boxes = np.array([[100, 300, 200, 380, s, 20.0] for s in (0.95, 0.9, 0.7, 0.5)], np.float32)
+    low = boxes.copy()
+    low[:, 4] *= 0.6
+    none = Candidates(np.zeros(0, int), np.zeros(0, int), np.zeros((0, len(FEATURES))))
+    proj = Projection(uv=np.zeros((0, 2)), front=np.zeros(0, bool), bev_range=np.zeros(0))
+    args = (none, np.zeros(0), np.zeros(0, np.int32), np.zeros(0, bool))
+    F, F_low = box_features(*args, boxes, cam, proj), box_features(*args, low, cam, proj)
+    np.testing.assert_allclose(F_low[:, 0], boxes[:, 4] * 0.8 / np.median(boxes[:, 4]), rtol=1e-6)
+    np.testing.assert_allclose(F_low[:, 1], F[:, 1], rtol=1e-6)
+    np.testing.assert_allclose(F[:, 0], boxes[:, 4], rtol=1e-6)            # median 0.8 already
 
 
 def test_the_three_fits_read_the_candidates_computed_once_as_they_would_compute_them(views):

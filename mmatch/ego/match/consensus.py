@@ -16,7 +16,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import (TYPICAL_SCORE, Hypotheses, MatchContext, MatchResult, background_tree,
+from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree,
                              detection_scores, heading_yaws, road_speed_consistency)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import (ObservationModel, Observations, mahalanobis, observe,
@@ -24,7 +24,7 @@ from mmatch.ego.observations import (ObservationModel, Observations, mahalanobis
 from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import distinct_best, se2_to_matrix
 from mmatch.numeric import lengths
-from mmatch.shared import SharedFrame
+from mmatch.shared import TYPICAL_SCORE, SharedFrame
 
 
 @dataclass(frozen=True)
