@@ -27,9 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from mmatch.cav.membership import (CONTEXT_FEATURES, FEATURES, MODEL_PATH, box_training_rows,
-                                       context_training_pairs, fit_box_model, fit_membership,
-                                       labelled_candidates, load_model, training_pairs)
+    from mmatch.cav.membership import (CONTEXT_FEATURES, FEATURES, MODEL_PATH, context_training_pairs,
+                                       fit_membership, labelled_candidates, load_model, training_pairs)
     from mmatch.errors import ParseError
     from mmatch.scene_io import load_scene
 
@@ -46,12 +45,7 @@ def run(args: argparse.Namespace) -> int:
     if args.box_only:
         if not out.is_file():
             raise ParseError(f"--box-only: {out} holds no membership model to keep")
-        model = load_model(str(out))
-        Xb, yb = box_training_rows(views, model, prepared=prepared)
-        try:
-            model = replace(model, box=fit_box_model(Xb, yb, args.box_threshold))
-        except ValueError as exc:
-            raise ParseError(str(exc)) from exc
+        model, Xb, _ = _with_box_model(load_model(str(out)), views, prepared, args.box_threshold)
         out.write_text(model.to_json() + "\n")
         print(f"refit the false-detection model on {len(Xb)} boxes, membership kept; wrote {out}")
         return 0
@@ -68,11 +62,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ParseError(str(exc)) from exc
         model = replace(model, context=context)
-    Xb, yb = box_training_rows(views, model, prepared=prepared)
-    try:
-        model = replace(model, box=fit_box_model(Xb, yb, args.box_threshold))
-    except ValueError as exc:
-        raise ParseError(str(exc)) from exc
+    model, Xb, yb = _with_box_model(model, views, prepared, args.box_threshold)
     out.write_text(model.to_json() + "\n")
     p = model.box.probability(Xb)
     drop = p < model.box.threshold
@@ -81,3 +71,18 @@ def run(args: argparse.Namespace) -> int:
           f"validation accuracy {model.meta['validation_score']:.3f}{stage2}; boxes: {len(Xb)}, false ones not shared "
           f"{drop[~yb].mean():.2f}, real ones lost {drop[yb].mean():.3f} (on the training views); wrote {out}")
     return 0
+
+
+def _with_box_model(model, views: list, prepared: list, threshold: float):
+    """The model with its false-detection model fit on the views under its membership stages;
+    and the boxes' features and truth."""
+    from dataclasses import replace
+
+    from mmatch.cav.membership import box_training_rows, fit_box_model
+    from mmatch.errors import ParseError
+
+    Xb, yb = box_training_rows(views, model, prepared=prepared)
+    try:
+        return replace(model, box=fit_box_model(Xb, yb, threshold)), Xb, yb
+    except ValueError as exc:
+        raise ParseError(str(exc)) from exc
