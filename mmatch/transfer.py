@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mmatch.errors import ConfigError
+from mmatch.errors import ConfigError, MMatchError
 from mmatch.evaluate import EvalConfig, evaluate_with, report
 from mmatch.scene_io import load_scene
 from mmatch.types import Scene, View
@@ -149,12 +149,17 @@ def parse_checks(text: str | None) -> list[str]:
 
 
 def _evaluate(task: tuple[str, str, EvalConfig]) -> dict:
+    """One scene under one check: the per-scene result, or {"rejected": why} for a file that is
+    no scene or (with perfect separation) has no labels."""
     path, name, cfg = task
-    scene = load_scene(path)
-    orders = None
-    if name != NONE:
-        scene, orders = _perturbed(scene, CHECKS[name])
-    r, _ = evaluate_with(scene, cfg)
+    try:
+        scene = load_scene(path)
+        orders = None
+        if name != NONE:
+            scene, orders = _perturbed(scene, CHECKS[name])
+        r, _ = evaluate_with(scene, cfg)
+    except MMatchError as exc:                  # not a scene, or no labels for perfect separation
+        return {"file": path, "rejected": str(exc)}
     out = {k: r[k] for k in ("status", "box_pairs", "T_ego_cav", "tp", "predicted", "gt_pairs", "rre_deg",
                              "rte_m", "success", "payload_bytes", "stages_ms", "confidence", "candidate")}
     if orders is not None:                          # the reported pairs in the file's box indices
@@ -164,8 +169,11 @@ def _evaluate(task: tuple[str, str, EvalConfig]) -> dict:
 
 
 def _changed(a: list[dict], b: list[dict]) -> int:
-    """How many scenes differ in status, pairs or transform (1 mm / 1e-6) between two runs."""
+    """How many scenes differ in status, pairs or transform (1 mm / 1e-6) between two runs
+    (rejected in both: the same)."""
     def same(x: dict, y: dict) -> bool:
+        if ("rejected" in x) or ("rejected" in y):
+            return ("rejected" in x) == ("rejected" in y)
         if x["status"] != y["status"] or x["box_pairs"] != y["box_pairs"]:
             return False
         if (x["T_ego_cav"] is None) != (y["T_ego_cav"] is None):
@@ -177,7 +185,8 @@ def _changed(a: list[dict], b: list[dict]) -> int:
 def _summary(rep: dict) -> dict:
     p, r = rep["pair_precision"], rep["pair_recall"]
     at = {round(e["coverage"], 2): e for e in rep["risk_coverage"]}
-    return {"pair_f1": 2 * p * r / (p + r) if p + r else 0.0, "success_rate": rep["success_rate"],
+    return {"scenes": rep["scenes"], "rejected": rep["rejected"],
+            "pair_f1": 2 * p * r / (p + r) if p + r else 0.0, "success_rate": rep["success_rate"],
             "coverage": rep["coverage"], "gross_at_0.8": at.get(0.8, {}).get("gross_rate")}
 
 
@@ -237,6 +246,12 @@ def markdown(result: dict) -> str:
         changed = f"{p['changed_scenes']} / {lab['changed_scenes']}"
         if e["kind"] == "invariance":
             changed += " (holds)" if p["changed_scenes"] == lab["changed_scenes"] == 0 else " (BROKEN)"
-        rows.append(f"| {name} | {e['kind']} | {p['pair_f1']:.3f} / {p['success_rate']:.3f} | "
-                    f"{lab['pair_f1']:.3f} / {lab['success_rate']:.3f} | {delta:+.1f} | {changed} |")
+        rows.append(f"| {name} | {e['kind']} | {_figures(p)} | {_figures(lab)} | {delta:+.1f} | {changed} |")
     return "\n".join(rows)
+
+
+def _figures(summary: dict) -> str:
+    """ "F1 / success", or "-" when no scene could be evaluated (no labels for perfect separation)."""
+    if not summary["scenes"]:
+        return "-"
+    return f"{summary['pair_f1']:.3f} / {summary['success_rate']:.3f}"

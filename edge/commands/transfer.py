@@ -34,7 +34,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--scenes: {args.scenes} must be at least 1")
     result = run_transfer(args.folder, parse_checks(args.checks), jobs=args.jobs, max_scenes=args.scenes,
                           progress=Progress("transfer"))
-    print(f"{result['scenes']} scenes; invariances must change no scene, shifts show what they cost")
+    ref = result["checks"]["none"]
+    print(f"{result['scenes']} scene files, {ref['pipeline']['rejected']} rejected "
+          f"({ref['labels']['rejected']} for perfect separation, which needs labels); invariances must "
+          f"change no scene, shifts show what they cost")
     print(markdown(result))
     if args.json:
         out = Path(args.json)

@@ -123,3 +123,29 @@ def test_a_broken_invariance_is_reported_and_fails_the_command(hard_dir, monkeyp
     assert out["checks"]["depth-halved"]["pipeline"]["changed_scenes"] > 0
     assert main(["transfer", str(hard_dir), "--checks", "depth-halved", "--scenes", "4"]) == 1
     assert "(BROKEN)" in capsys.readouterr().out
+
+
+def test_files_that_are_no_scene_or_have_no_labels_are_counted_not_fatal(hard_dir, tmp_path, capsys):
+    """A folder from elsewhere: one good scene, one scene without labels (perfect separation
+    cannot run on it), one file that is no scene. Each check runs on what it can."""
+    from dataclasses import replace
+
+    from mmatch.scene_io import save_scene
+
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    good = sorted(hard_dir.glob("*.npz"))[:2]
+    (folder / "a.npz").write_bytes(good[0].read_bytes())
+    s = load_scene(good[1])
+    bare = replace(s, ego=replace(s.ego, point_labels=None, box_ids=None),
+                   cav=replace(s.cav, point_labels=None, box_ids=None))
+    save_scene(folder / "b.npz", bare)
+    (folder / "c.npz").write_bytes(b"not a scene at all")
+    out = run_transfer(folder, ["point-order"])
+    ref = out["checks"]["none"]
+    assert out["scenes"] == 3
+    assert (ref["pipeline"]["scenes"], ref["pipeline"]["rejected"]) == (2, 1)
+    assert (ref["labels"]["scenes"], ref["labels"]["rejected"]) == (1, 2)
+    assert out["checks"]["point-order"]["pipeline"]["changed_scenes"] == 0
+    assert main(["transfer", str(folder), "--checks", "point-order"]) == 0
+    assert "3 scene files, 1 rejected (2 for perfect separation" in capsys.readouterr().out
