@@ -142,11 +142,12 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
 
     # ---- 2. frustum separation
     with np.errstate(invalid="ignore"):
+        canon = canonical_boxes(boxes, camera.K)             # what the wire carries of each box
         box_ok = np.all(np.isfinite(boxes), axis=1) & np.all(np.isfinite(features), axis=1) \
             & (boxes[:, 4] >= max(cfg.separation.min_box_score, 0.0)) & (boxes[:, 4] <= 1.0) \
             & (boxes[:, 5] > 0) & (boxes[:, 5] <= lim.max_range_m) \
             & np.all(np.abs(boxes[:, :4]) <= lim.max_pixel, axis=1) \
-            & np.all(np.abs(canonical_boxes(boxes, camera.K)[:, :4]) <= lim.max_pixel, axis=1) \
+            & np.all(np.abs(canon[:, :4]) <= lim.max_pixel, axis=1) \
             & (boxes[:, 2] >= boxes[:, 0]) & (boxes[:, 3] >= boxes[:, 1])
     vbox = np.flatnonzero(box_ok).astype(np.int32)          # vehicle v <-> box vbox[v]
     vbox = vbox[~duplicates(boxes[vbox], cfg.plausibility)]  # second boxes on one vehicle
@@ -242,7 +243,7 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
         ego_velocity=np.asarray(ego.velocity, np.float64).copy(),
         vehicle_points=points[veh_idx].astype(np.float32),
         vehicle_index=vidx.astype(np.int32),
-        vehicle_boxes=canonical_boxes(vb, camera.K),
+        vehicle_boxes=canon[vbox],
         vehicle_box_index=vbox,
         vehicle_centers=centres.astype(np.float32),
         vehicle_features=features[vbox].astype(np.float32),
