@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+
+from mmatch.edge.commands.output import write_json
 
 HELP = ("compare matchers (RM-net + verification, RM-net alone, consensus with RM-net pairs, consensus, "
         "descriptor, geometry) on one folder")
@@ -48,8 +49,5 @@ def run(args: argparse.Namespace) -> int:
           f"descriptor scale {first['config']['descriptor_scale']:.3f}")
     print(markdown(reports))
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(reports, indent=2))
-        print(f"wrote {out}")
+        write_json(args.json, reports)
     return 0

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
+
+from mmatch.edge.commands.output import write_json
 
 HELP = "fit the radar's own velocity on every mmatch-radar/1 file of a folder and report errors"
 
@@ -53,8 +54,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"velocity error m/s: median {_fmt(err['median'])}  p90 {_fmt(err['p90'])}")
     print(f"moving points: precision {_fmt(r['moving_precision'])}  recall {_fmt(r['moving_recall'])}")
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(r, indent=1))
-        print(f"wrote {out}")
+        write_json(args.json, r, indent=1)
     return 0

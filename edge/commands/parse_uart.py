@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from pathlib import Path
+
+from mmatch.edge.commands.output import write_json
 
 HELP = "decode a raw TI UART (TLV) capture: frames, points, skipped bytes, rejects by reason"
 
@@ -76,8 +77,5 @@ def run(args: argparse.Namespace) -> int:
         fp = summary["first_point"]
         print("  first point: " + ", ".join(f"{k} {v:.3f}" for k, v in fp.items()))
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(summary, indent=1))
-        print(f"wrote {out}")
+        write_json(args.json, summary, indent=1)
     return 0

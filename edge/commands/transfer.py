@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+
+from mmatch.edge.commands.args import positive_int
+from mmatch.edge.commands.output import write_json
 
 HELP = ("evaluate a folder as it is and with one convention or constant changed at a time "
         "(camera resolution, point and detection order, detector scores, depth bias, SNR, "
@@ -18,8 +20,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                   "perfect separation)")
     p.add_argument("--checks", default=None,
                    help=f"comma-separated, from {', '.join(CHECKS)} (default: all)")
-    p.add_argument("--scenes", type=int, default=None, help="the first N scene files only")
-    p.add_argument("--jobs", type=int, default=1, help="worker processes")
+    p.add_argument("--scenes", type=positive_int, default=None, help="the first N scene files only")
+    p.add_argument("--jobs", type=positive_int, default=1, help="worker processes")
     p.add_argument("--json", help="write the figures here")
 
 
@@ -30,8 +32,6 @@ def run(args: argparse.Namespace) -> int:
 
     if not Path(args.folder).is_dir():
         raise ConfigError(f"folder: {args.folder} is not a folder")
-    if args.scenes is not None and args.scenes < 1:
-        raise ConfigError(f"--scenes: {args.scenes} must be at least 1")
     result = run_transfer(args.folder, parse_checks(args.checks), jobs=args.jobs, max_scenes=args.scenes,
                           progress=Progress("transfer"))
     ref = result["checks"]["none"]
@@ -40,10 +40,7 @@ def run(args: argparse.Namespace) -> int:
           f"change no scene, shifts show what they cost")
     print(markdown(result))
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(result, indent=2))
-        print(f"wrote {out}")
+        write_json(args.json, result)
     broken = [n for n, e in result["checks"].items() if e["kind"] == "invariance"
               and (e["pipeline"]["changed_scenes"] or e["labels"]["changed_scenes"])]
     return 1 if broken else 0
