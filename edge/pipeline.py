@@ -46,6 +46,8 @@ def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0,
                      confidence_threshold: float | None = None) -> Pipeline:
     """The product pipeline; `need_fuse=False` lets a CAV run without the fusion module.
 
+    The CAV side keeps its camera's depth scale calibrated across frames (mmatch/cav/depth_scale.py).
+
     track_max_age_s > 0: one Fuser for the whole run that carries each CAV's transform
     across frames (mmatch/ego/track/) for up to that long and tracks the fused objects.
     confidence_threshold: estimates less sure are "no estimate" (None or negative: the fitted
@@ -71,7 +73,8 @@ def default_pipeline(*, need_fuse: bool = True, track_max_age_s: float = 0.0,
         fuse = one.fuse
         track_objects = one.track_objects if track_max_age_s > 0 else None
         idle = one.run_deferred
-    return Pipeline(process_view=_get("mmatch.cav.process", "process_view"),
+    view_processor = _get("mmatch.cav.process", "ViewProcessor")      # its camera's depth calibration
+    return Pipeline(process_view=view_processor(),
                     encode=_get("mmatch.codec", "encode"), decode=_get("mmatch.codec", "decode"),
                     fuse=fuse, track_objects=track_objects, idle=idle)
 

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from mmatch.evaluate import EvalConfig, evaluate_dir, folder_descriptor_scale
+from mmatch.evaluate import EvalConfig, evaluate_dir, with_folder_calibration
 
 ABLATION = ("rmnet", "rmnet-only", "consensus-rmnet", "consensus", "descriptor", "geometry")
 LABELS = {"rmnet": "RM-net + verification", "rmnet-only": "RM-net alone",
@@ -23,10 +23,9 @@ LABELS = {"rmnet": "RM-net + verification", "rmnet-only": "RM-net alone",
 
 def run_ablation(folder: str | Path, matchers: tuple[str, ...] = ABLATION, cfg: EvalConfig = EvalConfig(),
                  jobs: int = 1, progress: Callable[[str], Callable[[int, int], None] | None] | None = None) -> dict:
-    """{matcher: DESIGN.md eval report} on the same files; the descriptor scale is measured once."""
+    """{matcher: DESIGN.md eval report} on the same files; the descriptor and depth scales are measured once."""
     files = sorted(str(p) for p in Path(folder).glob("*.npz"))
-    if cfg.descriptor_scale is None:
-        cfg = replace(cfg, descriptor_scale=folder_descriptor_scale(files))
+    cfg = with_folder_calibration(cfg, files, jobs)
     out = {}
     for m in matchers:
         rep, _ = evaluate_dir(folder, replace(cfg, matcher=m), jobs, progress(m) if progress else None)

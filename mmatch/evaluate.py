@@ -42,6 +42,10 @@ class EvalConfig:
     file (None: the packaged one). heading_prior: False runs the Ego side as if neither
     radar's velocity gave the road direction (a vehicle standing still or turning: ego/base.py
     `without_heading_prior`), on scenes that all have one.
+    depth_scale: (ego, cav) factors on each camera's box depths, its calibration to its radar
+    (cav/depth_scale.py); None: `evaluate_dir` measures them on the folder (no labels used:
+    each camera's boxes against its radar's moving returns), a single scene uses 1. Folders of
+    our own physics measure 1 (within the content band).
     """
 
     matcher: str = DEFAULT_MATCHER
@@ -51,6 +55,7 @@ class EvalConfig:
     confidence_threshold: float | None = None
     confidence_model: str | None = None
     heading_prior: bool = True
+    depth_scale: tuple[float, float] | None = None
 
 
 _FUSERS: dict = {}
@@ -68,14 +73,65 @@ def _fuser(cfg: EvalConfig):
 
 
 def _views(scene: Scene, cfg: EvalConfig):
+    se, sc = cfg.depth_scale or (1.0, 1.0)
     if cfg.cav == "labels":
         from mmatch.label_frames import shared_from_labels
-        return shared_from_labels(scene.ego, "ego"), shared_from_labels(scene.cav, "cav"), {}
+        return (shared_from_labels(_depth_scaled(scene.ego, se), "ego"),
+                shared_from_labels(_depth_scaled(scene.cav, sc), "cav"), {})
     from mmatch.cav.process import process_view
     e, c = scene.ego, scene.cav
-    own, _ = process_view(e.points, e.boxes, e.features, e.camera, e.radar_height, e.stamp, sender="ego")
-    other, times = process_view(c.points, c.boxes, c.features, c.camera, c.radar_height, c.stamp, sender="cav")
+    own, _ = process_view(e.points, e.boxes, e.features, e.camera, e.radar_height, e.stamp, sender="ego",
+                          depth_scale=se)
+    other, times = process_view(c.points, c.boxes, c.features, c.camera, c.radar_height, c.stamp, sender="cav",
+                                depth_scale=sc)
     return own, other, times
+
+
+def _depth_scaled(view, scale: float):
+    if scale == 1.0:
+        return view
+    boxes = np.array(view.boxes, np.float32)
+    boxes[:, 5] *= scale
+    return replace(view, boxes=boxes)
+
+
+def scene_depth_ratios(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """The (ego, cav) cameras' depth evidence of one frame pair (cav/depth_scale.py
+    `box_log_ratios`, through the CAV-side processing as it runs)."""
+    from mmatch.cav.process import run_view
+    return tuple(run_view(v.points, v.boxes, v.features, v.camera, v.radar_height, v.stamp).depth_log_ratios
+                 for v in (scene.ego, scene.cav))
+
+
+def _file_depth_ratios(path: str) -> tuple[np.ndarray, np.ndarray] | None:
+    from mmatch.scene_io import load_scene
+    try:
+        return scene_depth_ratios(load_scene(path))
+    except MMatchError:                                     # reported by the evaluation
+        return None
+
+
+def folder_depth_scales(files: list[str], jobs: int = 1) -> tuple[float, float]:
+    """The (ego, cav) cameras' depth scales from every frame pair of a folder (no labels)."""
+    from mmatch.cav.depth_scale import scale_from_ratios
+    if jobs > 1 and len(files) > 1:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            ratios = list(pool.map(_file_depth_ratios, files, chunksize=8))
+    else:
+        ratios = [_file_depth_ratios(f) for f in files]
+    ratios = [r for r in ratios if r is not None]
+    return tuple(scale_from_ratios(np.concatenate([r[k] for r in ratios]) if ratios else np.zeros(0))
+                 for k in (0, 1))
+
+
+def with_folder_calibration(cfg: EvalConfig, files: list[str], jobs: int = 1) -> EvalConfig:
+    """`cfg` with its descriptor and depth scales measured on `files` where it leaves them None."""
+    if cfg.descriptor_scale is None:
+        cfg = replace(cfg, descriptor_scale=folder_descriptor_scale(files))
+    if cfg.depth_scale is None:
+        cfg = replace(cfg, depth_scale=folder_depth_scales(files, jobs))
+        log.info("camera depth scales (ego, cav): %.3f, %.3f", *cfg.depth_scale)
+    return cfg
 
 
 def prepare_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> tuple:
@@ -205,8 +261,7 @@ def evaluate_dir(folder: str | Path, cfg: EvalConfig = EvalConfig(), jobs: int =
                  progress: Callable[[int, int], None] | None = None) -> tuple[dict, list[dict]]:
     """Evaluate every *.npz of `folder`; returns (report as DESIGN.md, per-file results)."""
     files = sorted(str(p) for p in Path(folder).glob("*.npz"))
-    if cfg.descriptor_scale is None:
-        cfg = replace(cfg, descriptor_scale=folder_descriptor_scale(files))
+    cfg = with_folder_calibration(cfg, files, jobs)
     tasks = [(f, cfg) for f in files]
     results: list[dict] = []
     if jobs <= 1:
@@ -313,7 +368,8 @@ def format_table(rep: dict) -> str:
           if rep["pair_precision"] + rep["pair_recall"] else 0.0)
     lines = [
         f"matcher {rep['config']['matcher']}, aligner {rep['config']['aligner']}, cav {rep['config']['cav']}, "
-        f"descriptor scale {rep['config'].get('descriptor_scale') or 1.0:.3f}",
+        f"descriptor scale {rep['config'].get('descriptor_scale') or 1.0:.3f}, camera depth scales "
+        f"{'{:.3f} / {:.3f}'.format(*(rep['config'].get('depth_scale') or (1.0, 1.0)))}",
         f"scenes {rep['scenes']}  rejected {rep['rejected']}  no estimate {rep['no_estimate']}",
         f"{'':<14}{'median':>9}{'mean':>9}{'p90':>9}",
         f"{'RRE (deg)':<14}{rep['rre_deg']['median']:>9.2f}{rep['rre_deg']['mean']:>9.2f}{rep['rre_deg']['p90']:>9.2f}",

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from mmatch.errors import ConfigError, MMatchError
-from mmatch.evaluate import EvalConfig, evaluate_with, report
+from mmatch.evaluate import EvalConfig, evaluate_with, report, scene_depth_ratios
 from mmatch.scene_io import load_scene
 from mmatch.types import Scene, View
 
@@ -168,6 +168,24 @@ def _evaluate(task: tuple[str, str, EvalConfig]) -> dict:
     return out
 
 
+def _depth_ratios(task: tuple[str, str]) -> tuple[np.ndarray, np.ndarray] | None:
+    """One scene's camera depth evidence under one check (None: no scene)."""
+    path, name = task
+    try:
+        scene = load_scene(path)
+        if name != NONE:
+            scene, _ = _perturbed(scene, CHECKS[name])
+        return scene_depth_ratios(scene)
+    except MMatchError:
+        return None
+
+
+def _depth_scales(ratios: list) -> tuple[float, float]:
+    from mmatch.cav.depth_scale import scale_from_ratios
+    ok = [r for r in ratios if r is not None]
+    return tuple(scale_from_ratios(np.concatenate([r[k] for r in ok]) if ok else np.zeros(0)) for k in (0, 1))
+
+
 def _changed(a: list[dict], b: list[dict]) -> int:
     """How many scenes differ in status, pairs or transform (1 mm / 1e-6) between two runs
     (rejected in both: the same)."""
@@ -199,10 +217,15 @@ def run_transfer(folder: str | Path, checks: list[str], cfg: EvalConfig = EvalCo
     if not files:
         raise ConfigError(f"folder: no *.npz scene files in {folder}")
     names = [NONE] + [n for n in checks if n != NONE]
-    tasks = [(f, n, replace(cfg, cav=cav))
-             for n in names for cav in ("pipeline", "labels") for f in files]
     results: list[dict] = []
     with ProcessPoolExecutor(max_workers=jobs) if jobs > 1 else _Serial() as pool:
+        cfgs = {n: cfg for n in names}
+        if cfg.depth_scale is None:             # each check's cameras calibrated on its own scenes
+            ratios = list(pool.map(_depth_ratios, [(f, n) for n in names for f in files], chunksize=4))
+            cfgs = {n: replace(cfg, depth_scale=_depth_scales(ratios[i * len(files):(i + 1) * len(files)]))
+                    for i, n in enumerate(names)}
+        tasks = [(f, n, replace(cfgs[n], cav=cav))
+                 for n in names for cav in ("pipeline", "labels") for f in files]
         for k, r in enumerate(pool.map(_evaluate, tasks, chunksize=4)):
             results.append(r)
             if progress:
@@ -217,6 +240,7 @@ def run_transfer(folder: str | Path, checks: list[str], cfg: EvalConfig = EvalCo
             block = results[(2 * i + j) * n:(2 * i + j + 1) * n]
             entry[cav] = _summary(report(block, replace(cfg, cav=cav)))
             entry[cav]["changed_scenes"] = _changed(results[j * n:(j + 1) * n], block)
+        entry["depth_scale"] = list(cfgs[name].depth_scale or (1.0, 1.0))
         out["checks"][name] = entry
     return out
 

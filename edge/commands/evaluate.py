@@ -33,12 +33,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_scene_options(p: argparse.ArgumentParser) -> None:
     """The options of how scene files are run that `mmatch eval` and `mmatch report` share:
-    --cav, --descriptor-scale, --confidence-threshold, --no-heading-prior."""
+    --cav, --descriptor-scale, --depth-scale, --confidence-threshold, --no-heading-prior."""
     p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
                    help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
     p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
                    help="factor on appearance-descriptor distances; auto: measured on the folder "
                         "without labels; 1: as the files have them")
+    p.add_argument("--depth-scale", type=_depth_scale, default=None, metavar="auto|FACTOR|EGO,CAV",
+                   help="factor on each camera's box depths; auto (default): each camera calibrated to its "
+                        "radar on the folder without labels (1 within the spread of calibrated cameras; "
+                        "with --sequences: 1); one factor for both cameras, or the Ego's and the CAV's")
     p.add_argument("--confidence-threshold", type=unit_interval, default=None, metavar="P",
                    help="estimates less sure than P (0-1) are 'no estimate'; default: the fitted model's "
                         "threshold; 0 emits every estimate")
@@ -69,6 +73,19 @@ def _scale(text: str) -> float | None:
     return v
 
 
+def _depth_scale(text: str) -> tuple[float, float] | None:
+    if text == "auto":
+        return None
+    parts = text.split(",")
+    try:
+        values = [float(x) for x in parts]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 2) or not all(0 < v < float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"expected auto, a positive factor or two (EGO,CAV), got {text!r}")
+    return (values[0], values[-1])
+
+
 def run(args: argparse.Namespace) -> int:
     from mmatch.edge.commands.progress import Progress
     from mmatch.ego.align.baselines import missing_extra
@@ -84,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(why)
     cfg = EvalConfig(matcher=args.matcher, aligner=args.aligner, cav=args.cav,
                      descriptor_scale=args.descriptor_scale, confidence_threshold=args.confidence_threshold,
-                     heading_prior=args.heading_prior)
+                     heading_prior=args.heading_prior, depth_scale=args.depth_scale)
     if args.sequences:
         return _run_sequences(args, cfg)
     rep, results = evaluate_dir(args.folder, cfg, args.jobs, Progress("eval"))

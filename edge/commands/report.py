@@ -44,7 +44,8 @@ def run(args: argparse.Namespace) -> int:
         pyplot()                                    # fail now, not after the run, without matplotlib
     print(f"report: {len(methods)} methods on {args.folder} ({args.jobs} jobs)", flush=True)
     base = EvalConfig(cav=args.cav, descriptor_scale=args.descriptor_scale,
-                      confidence_threshold=args.confidence_threshold, heading_prior=args.heading_prior)
+                      confidence_threshold=args.confidence_threshold, heading_prior=args.heading_prior,
+                      depth_scale=args.depth_scale)
     run_ = evaluate_methods(args.folder, methods, base, args.jobs, Progress("report"))
     for m, why in run_.skipped:
         print(f"skipped {m.key}: {why}", file=sys.stderr)

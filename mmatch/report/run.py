@@ -19,7 +19,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, is_dataclass, replace
 from pathlib import Path
 
-from mmatch.evaluate import EvalConfig, evaluate_file, folder_descriptor_scale, report
+from mmatch.evaluate import EvalConfig, evaluate_file, report, with_folder_calibration
 from mmatch.report.facts import scene_facts
 from mmatch.report.methods import Method, unavailable
 
@@ -60,10 +60,11 @@ def evaluate_methods(folder: str | Path, methods: list[Method], base: EvalConfig
 
     base: the settings every method shares (cav, descriptor scale, confidence threshold), as
     `mmatch eval` takes them; its matcher and aligner are replaced by each method's. A
-    descriptor scale of None is measured once on the folder, as `evaluate_dir` does.
+    descriptor or depth scale of None is measured once on the folder, as `evaluate_dir` does.
     """
     files = sorted(str(p) for p in Path(folder).glob("*.npz"))
-    scale = folder_descriptor_scale(files) if base.descriptor_scale is None else base.descriptor_scale
+    base = with_folder_calibration(base, files, jobs)
+    scale = base.descriptor_scale
     ready, skipped = [], []
     for m in methods:
         why = unavailable(m)
