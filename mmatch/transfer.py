@@ -66,6 +66,23 @@ def _box_column(col: int, factor: float) -> Callable[[View, np.random.Generator]
     return apply
 
 
+def _depth_offset(offset_m: float) -> Callable[[View, np.random.Generator], View]:
+    def apply(view: View, rng: np.random.Generator) -> View:
+        boxes = np.array(view.boxes, np.float32)
+        boxes[:, 5] = np.maximum(boxes[:, 5] + offset_m, 1.0)
+        return replace(view, boxes=boxes)
+    return apply
+
+
+def _depth_along_axis(view: View, rng: np.random.Generator) -> View:
+    """Depth along the camera's optical axis instead of the distance to the vehicle centre."""
+    boxes = np.array(view.boxes, np.float32)
+    K = np.asarray(view.camera.K, np.float64)
+    bearing = np.arctan(((boxes[:, 0] + boxes[:, 2]) / 2 - K[0, 2]) / K[0, 0])
+    boxes[:, 5] *= np.cos(bearing).astype(np.float32)
+    return replace(view, boxes=boxes)
+
+
 def _point_column(col: int, offset: float | None) -> Callable[[View, np.random.Generator], View]:
     def apply(view: View, rng: np.random.Generator) -> View:
         points = np.array(view.points, np.float32)
@@ -109,6 +126,10 @@ CHECKS: dict[str, Check] = {c.name: c for c in (
     Check("depth-0.85", "shift", "monocular depth x 0.85 (a biased depth estimate)",
           _box_column(5, 0.85)),
     Check("depth-1.15", "shift", "monocular depth x 1.15", _box_column(5, 1.15)),
+    Check("depth-near-face", "shift", "monocular depth - 2 m (to the nearest face, not the centre)",
+          _depth_offset(-2.0)),
+    Check("depth-z", "shift", "monocular depth along the optical axis, not to the vehicle centre",
+          _depth_along_axis),
     Check("snr+10", "shift", "SNR + 10 dB (another radar's SNR scale)", _point_column(4, 10.0)),
     Check("snr-6", "shift", "SNR - 6 dB", _point_column(4, -6.0)),
     Check("no-elevation", "shift", "z = 0 for every return (a radar without elevation)",

@@ -47,6 +47,12 @@ def test_each_check_rewrites_both_views_as_described(hard_dir):
     assert len(half.ego.point_labels) == len(half.ego.points)
     np.testing.assert_allclose(perturb(s, CHECKS["scores-0.6"]).cav.boxes[:, 4], 0.6 * s.cav.boxes[:, 4], rtol=1e-6)
     np.testing.assert_allclose(perturb(s, CHECKS["depth-0.85"]).ego.boxes[:, 5], 0.85 * s.ego.boxes[:, 5], rtol=1e-6)
+    near = perturb(s, CHECKS["depth-near-face"]).ego.boxes[:, 5]
+    np.testing.assert_allclose(near, np.maximum(s.ego.boxes[:, 5] - 2.0, 1.0), rtol=1e-6)
+    axis = perturb(s, CHECKS["depth-z"]).cav.boxes[:, 5] / s.cav.boxes[:, 5]
+    u = (s.cav.boxes[:, 0] + s.cav.boxes[:, 2]) / 2 - s.cav.camera.K[0, 2]
+    np.testing.assert_allclose(axis, s.cav.camera.K[0, 0] / np.hypot(u, s.cav.camera.K[0, 0]), rtol=1e-5)
+    assert axis.min() < 0.99
     np.testing.assert_allclose(perturb(s, CHECKS["snr-6"]).ego.points[:, 4], s.ego.points[:, 4] - 6, atol=1e-5)
     assert not perturb(s, CHECKS["no-elevation"]).cav.points[:, 2].any()
     # repeatable, and the scene itself untouched
