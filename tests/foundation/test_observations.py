@@ -52,6 +52,32 @@ def test_covariance_is_long_along_the_line_of_sight():
     assert obs.cam_penalty.tolist() == [m.camera_penalty, 0.0]
 
 
+def test_returns_spread_beyond_a_car_length_loosen_the_centre_along_the_ray():
+    """A box holding returns 9 m apart in range (another vehicle's, or the background behind it)
+    knows its centre along the ray less well; within a car's length nothing changes."""
+    m = ObservationModel(camera_bearing=False)
+    one = _frame([[0.0, 30.0]], np.array([[0.0, 31.0]]))
+    spread = SharedFrame("x", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 10.0]),
+                         vehicle_points=np.array([[0, 26, 0, 0, 10], [0, 35, 0, 0, 10], [0, 30, 0, 0, 10],
+                                                  [20, 1, 0, 0, 10], [20, 4, 0, 0, 10]], np.float32),
+                         vehicle_index=np.array([0, 0, 0, 1, 1], np.int32),
+                         vehicle_boxes=np.tile(np.array([0, 0, 20, 10, 0.9, 20], np.float32), (2, 1)),
+                         vehicle_box_index=np.arange(2, dtype=np.int32),
+                         vehicle_centers=np.array([[0, 31], [20, 3]], np.float32),
+                         vehicle_features=np.full((2, 32), 1 / 16, np.float32),
+                         background=np.zeros((0, 3), np.float32))
+    along = lambda cov, u: float(np.sqrt(u @ cov @ u))                       # noqa: E731
+    a = observe(spread, m)
+    assert along(a.cov[0], np.array([0.0, 1.0])) == pytest.approx(np.hypot(m.along_points_m, 9.0 - 5.0), rel=1e-3)
+    u = np.array([20.0, 2.5]) / np.hypot(20.0, 2.5)
+    assert along(a.cov[1], u) == pytest.approx(m.along_points_m, rel=1e-2)       # 3 m: a car
+    assert along(observe(one, m).cov[0], np.array([0.0, 1.0])) == pytest.approx(m.along_points_m)
+    off = observe(spread, ObservationModel(camera_bearing=False, along_spread_k=0.0))
+    assert along(off.cov[0], np.array([0.0, 1.0])) == pytest.approx(m.along_points_m, rel=1e-3)
+    bearing = observe(spread, ObservationModel())                             # on the camera's ray too
+    assert along(bearing.cov[0], np.array([0.0, 1.0])) > 3.5
+
+
 def test_two_end_on_views_from_crossing_directions_agree_only_where_their_rays_cross():
     # a bus at (10, 30) in the Ego frame; the Ego sees its near face 4.4 m short along its
     # ray (3 m after the far-side correction); the CAV (turned 90 deg, 20 m to the right)
