@@ -58,6 +58,30 @@ def _half_points(view: View, rng: np.random.Generator) -> View:
     return _keep_points(view, np.flatnonzero(rng.random(len(view.points)) < 0.5))
 
 
+def _azimuth_noise(sigma_deg: float) -> Callable[[View, np.random.Generator], View]:
+    def apply(view: View, rng: np.random.Generator) -> View:
+        points = np.array(view.points, np.float32)
+        r = np.hypot(points[:, 0], points[:, 1])
+        az = np.arctan2(points[:, 0], points[:, 1]) + np.radians(sigma_deg) * rng.standard_normal(len(points))
+        points[:, 0], points[:, 1] = r * np.sin(az), r * np.cos(az)
+        return replace(view, points=points)
+    return apply
+
+
+def _double_points(view: View, rng: np.random.Generator) -> View:
+    """Every return twice, the copy 0.1 m, 1 deg and 0.1 m/s apart (a denser radar)."""
+    p = np.array(view.points, np.float64)
+    r, az = np.hypot(p[:, 0], p[:, 1]), np.arctan2(p[:, 0], p[:, 1])
+    n = len(p)
+    r2 = r + 0.1 * rng.standard_normal(n)
+    az2 = az + np.radians(1.0) * rng.standard_normal(n)
+    copy = p.copy()
+    copy[:, 0], copy[:, 1] = r2 * np.sin(az2), r2 * np.cos(az2)
+    copy[:, 3] += 0.1 * rng.standard_normal(n)
+    labels = None if view.point_labels is None else np.concatenate([view.point_labels, view.point_labels])
+    return replace(view, points=np.concatenate([p, copy]).astype(np.float32), point_labels=labels)
+
+
 def _box_column(col: int, factor: float) -> Callable[[View, np.random.Generator], View]:
     def apply(view: View, rng: np.random.Generator) -> View:
         boxes = np.array(view.boxes, np.float32)
@@ -135,6 +159,10 @@ CHECKS: dict[str, Check] = {c.name: c for c in (
     Check("no-elevation", "shift", "z = 0 for every return (a radar without elevation)",
           _point_column(2, None)),
     Check("half-points", "shift", "every radar return kept with probability 0.5", _half_points),
+    Check("double-points", "shift", "every radar return twice, the copy 0.1 m, 1 deg, 0.1 m/s apart (a denser radar)",
+          _double_points),
+    Check("azimuth+1.5deg", "shift", "1.5 deg more azimuth noise on every return (an array beyond the family)",
+          _azimuth_noise(1.5)),
 )}
 NONE = "none"
 

@@ -53,6 +53,18 @@ def test_each_check_rewrites_both_views_as_described(hard_dir):
     u = (s.cav.boxes[:, 0] + s.cav.boxes[:, 2]) / 2 - s.cav.camera.K[0, 2]
     np.testing.assert_allclose(axis, s.cav.camera.K[0, 0] / np.hypot(u, s.cav.camera.K[0, 0]), rtol=1e-5)
     assert axis.min() < 0.99
+    dense = perturb(s, CHECKS["double-points"]).ego
+    n = len(s.ego.points)
+    assert len(dense.points) == 2 * n and np.array_equal(dense.points[:n], s.ego.points)
+    np.testing.assert_array_equal(dense.point_labels, np.tile(s.ego.point_labels, 2))
+    gap = np.linalg.norm(dense.points[n:, :2] - s.ego.points[:, :2], axis=1)
+    assert 0.05 < np.median(gap) < 1.0
+    noisy = perturb(s, CHECKS["azimuth+1.5deg"]).ego.points
+    np.testing.assert_allclose(np.hypot(noisy[:, 0], noisy[:, 1]), np.hypot(s.ego.points[:, 0], s.ego.points[:, 1]),
+                               rtol=1e-4)
+    turn = np.degrees(np.arctan2(noisy[:, 0], noisy[:, 1]) - np.arctan2(s.ego.points[:, 0], s.ego.points[:, 1]))
+    assert 0.8 < np.std(turn) < 2.5
+    np.testing.assert_array_equal(noisy[:, 2:], s.ego.points[:, 2:])
     np.testing.assert_allclose(perturb(s, CHECKS["snr-6"]).ego.points[:, 4], s.ego.points[:, 4] - 6, atol=1e-5)
     assert not perturb(s, CHECKS["no-elevation"]).cav.points[:, 2].any()
     # repeatable, and the scene itself untouched
