@@ -419,7 +419,15 @@ class Node:
                 "no_estimate": c.no_estimate, "rx": c.rx, "rx_rejected": dict(c.rx_rejected),
                 "budget_skipped": c.budget_skipped, "links_expired": c.links_expired,
                 "links": {n: {"up": s.up, "gaps": s.gaps, "confidence": s.confidence,
-                              "ambiguity": s.ambiguity} for n, s in self.links.items()}}
+                              "ambiguity": s.ambiguity} for n, s in self.links.items()},
+                "camera_depth_scale": _depth_scale(self.pipeline)}
+
+
+def _depth_scale(pipeline: Pipeline) -> float | None:
+    """The factor the CAV side puts on this camera's box depths (its calibration to the radar,
+    mmatch/cav/depth_scale.py); None when the pipeline keeps none."""
+    scale = getattr(getattr(pipeline.process_view, "depth", None), "scale", None)
+    return None if scale is None else round(float(scale), 4)
 
 
 def comparable(msg: dict) -> dict:

@@ -150,3 +150,19 @@ def test_cli_takes_a_depth_scale_and_refuses_a_bad_one(hard_dir, tmp_path, capsy
         with pytest.raises(SystemExit):
             main(["eval", str(hard_dir), "--depth-scale", bad])
         assert "--depth-scale" in capsys.readouterr().err
+
+
+def test_the_vehicle_service_reports_its_camera_depth_scale(short_dir):
+    """The product pipeline's CAV side calibrates its camera, and the node's health says by how much."""
+    from mmatch.edge import config
+    from mmatch.edge.logschema import SensorFrame
+    from mmatch.edge.node import Node
+    from mmatch.edge.pipeline import default_pipeline
+
+    cfg = config.VehicleConfig(vehicle=config.VehicleSection(id="cav1", role="cav"))
+    views = [v for f in sorted(short_dir.glob("*.npz")) for v in (load_scene(f).ego, load_scene(f).cav)]
+    node = Node(cfg, default_pipeline(need_fuse=False), views[0].camera, views[0].radar_height)
+    assert node.summary()["camera_depth_scale"] == 1.0
+    for k, v in enumerate(views):
+        node.process(SensorFrame(seq=k, stamp=float(k) * 0.05, points=v.points, boxes=v.boxes, features=v.features))
+    assert 1.05 < node.summary()["camera_depth_scale"] < 1.2
