@@ -44,8 +44,9 @@ class EvalConfig:
     `without_heading_prior`), on scenes that all have one.
     depth_scale: (ego, cav) factors on each camera's box depths, its calibration to its radar
     (cav/depth_scale.py); None: `evaluate_dir` measures them on the folder (no labels used:
-    each camera's boxes against its radar's moving returns), a single scene uses 1. Folders of
-    our own physics measure 1 (within the content band).
+    each camera's boxes against its radar's moving returns), sequences over each sequence's
+    frames so far (as the vehicle service), a single scene uses 1. Folders of our own physics
+    measure 1 (within the content band).
     """
 
     matcher: str = DEFAULT_MATCHER
@@ -72,18 +73,19 @@ def _fuser(cfg: EvalConfig):
     return _FUSERS[key]
 
 
-def _views(scene: Scene, cfg: EvalConfig):
+def _views(scene: Scene, cfg: EvalConfig, processors: tuple | None = None):
     se, sc = cfg.depth_scale or (1.0, 1.0)
     if cfg.cav == "labels":
         from mmatch.label_frames import shared_from_labels
         return (shared_from_labels(_depth_scaled(scene.ego, se), "ego"),
                 shared_from_labels(_depth_scaled(scene.cav, sc), "cav"), {})
+    from functools import partial
+
     from mmatch.cav.process import process_view
+    run_ego, run_cav = processors or (partial(process_view, depth_scale=se), partial(process_view, depth_scale=sc))
     e, c = scene.ego, scene.cav
-    own, _ = process_view(e.points, e.boxes, e.features, e.camera, e.radar_height, e.stamp, sender="ego",
-                          depth_scale=se)
-    other, times = process_view(c.points, c.boxes, c.features, c.camera, c.radar_height, c.stamp, sender="cav",
-                                depth_scale=sc)
+    own, _ = run_ego(e.points, e.boxes, e.features, e.camera, e.radar_height, e.stamp, sender="ego")
+    other, times = run_cav(c.points, c.boxes, c.features, c.camera, c.radar_height, c.stamp, sender="cav")
     return own, other, times
 
 
@@ -134,12 +136,16 @@ def with_folder_calibration(cfg: EvalConfig, files: list[str], jobs: int = 1) ->
     return cfg
 
 
-def prepare_scene(scene: Scene, cfg: EvalConfig = EvalConfig()) -> tuple:
+def prepare_scene(scene: Scene, cfg: EvalConfig = EvalConfig(), processors: tuple | None = None) -> tuple:
     """Both views of a frame pair through the CAV-side processing and the CAV's through the wire
-    codec: (own SharedFrame, received SharedFrame, payload bytes, stage timings ms)."""
+    codec: (own SharedFrame, received SharedFrame, payload bytes, stage timings ms).
+
+    processors: the (Ego, CAV) cameras' `ViewProcessor`s (mmatch/cav/process.py) that keep each
+    camera's depth calibration across frames, as the vehicle service runs; cfg.depth_scale then
+    does not apply (with cav "pipeline"; perfect separation takes cfg.depth_scale)."""
     from mmatch.codec import decode, encode
 
-    own, other, stages = _views(scene, cfg)
+    own, other, stages = _views(scene, cfg, processors)
     t0 = time.perf_counter()
     payload = encode(other)
     t1 = time.perf_counter()

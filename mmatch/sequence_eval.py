@@ -98,9 +98,12 @@ def evaluate_sequence(files: list[str], cfg: SequenceEvalConfig = SequenceEvalCo
     "fused_objects" and "tracks" as the vehicle service publishes them). on_frame(scene,
     mode, FusionResult) is called after each fusion (for tests).
     """
+    from mmatch.cav.process import ViewProcessor
     from mmatch.object_eval import ObjectScore
     from mmatch.scene_io import load_scene
     fusers = {"tracked": tracking_fuser(cfg), "per_frame": per_frame_fuser(cfg)}
+    # each camera calibrates its depths over the frames so far, as the vehicle service does
+    processors = (ViewProcessor(), ViewProcessor()) if cfg.eval.depth_scale is None else None
     score = ObjectScore()
     out: dict[str, list[dict]] = {m: [] for m in MODES}
     for path in files:
@@ -111,7 +114,7 @@ def evaluate_sequence(files: list[str], cfg: SequenceEvalConfig = SequenceEvalCo
                 out[mode].append({"file": path, "rejected": str(exc)})
             continue
         try:
-            prepared = prepare_scene(scene, cfg.eval)
+            prepared = prepare_scene(scene, cfg.eval, processors)
         except MMatchError as exc:
             prepared, error = None, str(exc)
         for mode in MODES:

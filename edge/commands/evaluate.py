@@ -42,7 +42,8 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth-scale", type=_depth_scale, default=None, metavar="auto|FACTOR|EGO,CAV",
                    help="factor on each camera's box depths; auto (default): each camera calibrated to its "
                         "radar on the folder without labels (1 within the spread of calibrated cameras; "
-                        "with --sequences: 1); one factor for both cameras, or the Ego's and the CAV's")
+                        "with --sequences over each sequence's frames so far, as the vehicle service "
+                        "does); one factor for both cameras, or the Ego's and the CAV's")
     p.add_argument("--confidence-threshold", type=unit_interval, default=None, metavar="P",
                    help="estimates less sure than P (0-1) are 'no estimate'; default: the fitted model's "
                         "threshold; 0 emits every estimate")

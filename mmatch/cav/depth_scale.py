@@ -30,7 +30,8 @@ from mmatch.cav.frustum import Projection
 
 TYPICAL_LOG_RATIO = -0.062    # folder median of box log ratios, calibrated depths (wide / nominal sims)
 CONTENT_BAND = 0.03           # log units: folders of calibrated cameras lie within this of it
-MIN_BOXES = 100               # boxes with returns before a scale departs from 1
+MIN_BOXES = 100               # boxes with returns before a scale departs from 1 (independent scenes)
+RUNNING_MIN_BOXES = 300       # the same over consecutive frames, which see the same vehicles again
 SCALE_LIMITS = (0.5, 2.0)     # beyond these the depths are broken, not miscalibrated
 MIN_RETURNS = 2               # moving returns a box needs to give a ratio
 WINDOW = (0.5, 2.0)           # returns counted between these multiples of the box depth
@@ -72,7 +73,7 @@ def scale_from_ratios(ratios: Iterable[float], min_boxes: int = MIN_BOXES) -> fl
 class RunningDepthScale:
     """The scale from the boxes of the last frames (the vehicle service's calibration)."""
 
-    def __init__(self, window: int = 3000, min_boxes: int = MIN_BOXES) -> None:
+    def __init__(self, window: int = 3000, min_boxes: int = RUNNING_MIN_BOXES) -> None:
         self._ratios: deque[float] = deque(maxlen=window)
         self.min_boxes = min_boxes
         self.scale = 1.0

@@ -10,6 +10,7 @@ import pytest
 from mmatch.cav.depth_scale import (
     CONTENT_BAND,
     MIN_BOXES,
+    RUNNING_MIN_BOXES,
     SCALE_LIMITS,
     TYPICAL_LOG_RATIO,
     RunningDepthScale,
@@ -104,7 +105,7 @@ def test_the_service_calibrates_over_its_frames(short_dir):
     """The vehicle service's CAV side: depths as detected until enough boxes have spoken, then
     corrected; the shared frames carry the corrected depths."""
     proc = ViewProcessor()
-    views = [v for f in sorted(short_dir.glob("*.npz")) for v in (load_scene(f).ego, load_scene(f).cav)]
+    views = [v for f in sorted(short_dir.glob("*.npz")) for v in (load_scene(f).ego, load_scene(f).cav)] * 2
     scales = []
     for v in views:
         frame, _ = proc(v.points, v.boxes, v.features, v.camera, v.radar_height, v.stamp)
@@ -122,6 +123,7 @@ def test_the_service_calibrates_over_its_frames(short_dir):
 
 
 def test_running_scale_forgets_old_frames():
+    assert RunningDepthScale().update(np.full(RUNNING_MIN_BOXES - 1, TYPICAL_LOG_RATIO + 0.3)) == 1.0
     run = RunningDepthScale(window=200, min_boxes=50)
     assert run.update(np.full(30, TYPICAL_LOG_RATIO + 0.3)) == 1.0          # too few yet
     assert run.update(np.full(30, TYPICAL_LOG_RATIO + 0.3)) > 1.2
@@ -160,9 +162,29 @@ def test_the_vehicle_service_reports_its_camera_depth_scale(short_dir):
     from mmatch.edge.pipeline import default_pipeline
 
     cfg = config.VehicleConfig(vehicle=config.VehicleSection(id="cav1", role="cav"))
-    views = [v for f in sorted(short_dir.glob("*.npz")) for v in (load_scene(f).ego, load_scene(f).cav)]
+    views = [v for f in sorted(short_dir.glob("*.npz")) for v in (load_scene(f).ego, load_scene(f).cav)] * 2
     node = Node(cfg, default_pipeline(need_fuse=False), views[0].camera, views[0].radar_height)
     assert node.summary()["camera_depth_scale"] == 1.0
     for k, v in enumerate(views):
         node.process(SensorFrame(seq=k, stamp=float(k) * 0.05, points=v.points, boxes=v.boxes, features=v.features))
     assert 1.05 < node.summary()["camera_depth_scale"] < 1.2
+
+
+def test_frames_in_order_calibrate_as_the_service_does(short_dir):
+    """`prepare_scene` with the cameras' processors (what `mmatch eval --sequences` runs): each
+    camera's scale comes from the frames before, and the shared depths carry it."""
+    from mmatch.evaluate import prepare_scene
+
+    procs = (ViewProcessor(), ViewProcessor())
+    scenes = [load_scene(f) for f in sorted(short_dir.glob("*.npz"))] * 3       # a road driven again
+    for s in scenes:
+        prepare_scene(s, EvalConfig(depth_scale=(1.0, 1.0)), procs)
+    assert all(1.05 < p.depth.scale < 1.2 for p in procs)
+    s = scenes[0]
+    used = procs[1].depth.scale
+    received = prepare_scene(s, EvalConfig(), procs)[1]
+    plain = prepare_scene(s, EvalConfig(depth_scale=(1.0, 1.0)))[1]
+    k = np.intersect1d(received.vehicle_box_index, plain.vehicle_box_index)
+    got = received.vehicle_boxes[np.searchsorted(received.vehicle_box_index, k), 5]
+    raw = plain.vehicle_boxes[np.searchsorted(plain.vehicle_box_index, k), 5]
+    np.testing.assert_allclose(got, raw * used, atol=0.011)           # the wire keeps centimetres
