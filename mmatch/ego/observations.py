@@ -276,9 +276,21 @@ def pair_major_mahalanobis(A: Observations | PairedObservations, B: Observations
     """`mahalanobis` with the hypotheses last: (Va, Vb, H) distances (and modes), for callers
     that reduce over the vehicles (a reduction over a short last axis is slow in numpy)."""
     P = A if isinstance(A, PairedObservations) else paired(A, B)
-    Va, Vb = P.Va, P.Vb
-    q = _maha_sq(P.ca, P.Sa, P.cb, P.Sb, R, t)                              # (2 Va, 2 Vb, H)
+    return best_combination(combination_squares(P, R, t), P.Va, P.Vb, with_modes)
+
+
+def combination_squares(P: PairedObservations, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(2 Va, 2 Vb, H) float32 squared Mahalanobis distances plus camera penalties of every
+    combination of the two views' estimates under hypotheses R (H, 2, 2), t (H, 2): four
+    (Va, Vb) blocks, own best / camera by other best / camera (`best_combination`)."""
+    q = _maha_sq(P.ca, P.Sa, P.cb, P.Sb, R, t)
     q += P.pen[:, :, None]
+    return q
+
+
+def best_combination(q: np.ndarray, Va: int, Vb: int, with_modes: bool = False):
+    """(Va, Vb, H) distances of the best combination of `combination_squares` q (left as it
+    is), and with_modes the (Va, Vb, H) int8 combination (`mahalanobis`)."""
     # the four combinations are the four blocks of q; the best of them block by block (a
     # reduction over a combination axis costs twice as much)
     best = q[:Va, :Vb]
@@ -290,6 +302,16 @@ def pair_major_mahalanobis(A: Observations | PairedObservations, B: Observations
     np.maximum(best, 0.0, out=best)
     d = np.sqrt(best, out=best)
     return (d, mode) if with_modes else d   # mode: 2 * own mode + other mode
+
+
+def modes_at(q: np.ndarray, Va: int, Vb: int, a: np.ndarray, b: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """(k,) `best_combination`'s modes of own vehicles a (k,) and other vehicles b (k,) under
+    hypotheses h (k,) only: for callers that need a few of them. q must be C-contiguous (it is
+    as `combination_squares` makes it): the four blocks' entries are taken by flat index."""
+    H = q.shape[2]
+    cell = (a * (2 * Vb) + b) * H + h                                      # flat index in q
+    own_cam, other_cam = Va * 2 * Vb * H, Vb * H
+    return np.take(q, cell + np.array([[0], [other_cam], [own_cam], [own_cam + other_cam]])).argmin(axis=0)
 
 
 def mahalanobis(A: Observations | PairedObservations, B: Observations | None, R: np.ndarray, t: np.ndarray,

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mmatch.ego.observations import Observations, mahalanobis, paired
+from mmatch.ego.observations import Observations, best_combination, combination_squares, modes_at, paired
 from mmatch.ego.rigid import inv2
 
 
@@ -63,21 +63,89 @@ def _solve3(M: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 _H_FROM_SUMS = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])
 _H_SIGNS = np.array([1.0, -1.0, -1.0, -1.0, 1.0, 1.0, -1.0, 1.0, 1.0])
 _G_SIGNS = np.array([1.0, -1.0, -1.0])
+# a point p (k, 2) swapped and times this: (p_y, -p_x) = -d(R p)/dyaw for the rotated p
+_FLIP = np.array([1.0, -1.0])
 
 
-def _normal_equations(n: int, h_: np.ndarray, dr: np.ndarray, Wd: np.ndarray, W00: np.ndarray,
-                      W01: np.ndarray, W11: np.ndarray, Wr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _summands(dr: np.ndarray, Wd: np.ndarray, W00, W01, W11, Wr: np.ndarray) -> np.ndarray:
+    """(k, 9) what k residual terms add to the sums of `_normal_equations`: dr' W dr, W dr (2),
+    W00, W01, W11, dr' W r, W r (2). dr, Wd = W dr, Wr = W r: (k, 2); the weight's entries
+    (k,) or one for all."""
+    X = np.empty((len(dr), 9))
+    X[:, 0] = dr[:, 0] * Wd[:, 0] + dr[:, 1] * Wd[:, 1]
+    X[:, 1:3] = Wd
+    X[:, 3], X[:, 4], X[:, 5] = W00, W01, W11
+    X[:, 6] = dr[:, 0] * Wr[:, 0] + dr[:, 1] * Wr[:, 1]
+    X[:, 7:9] = Wr
+    return X
+
+
+def _normal_equations(n: int, h_: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The normal equations H (n, 3, 3), g (n, 3) of n hypotheses from k residual terms.
 
-    Term i belongs to hypothesis h_[i]; its residual r has weight W (2x2 symmetric: W00, W01,
-    W11, any scale folded in) and Jacobian J = [dr | -I] in (yaw, tx, ty), Wd = W dr and
-    Wr = W r (k, 2). J^T W J = [[dr' W dr, -dr' W], [-W dr, W]] and J^T W r = [dr' W r, -W r],
-    summed per hypothesis in one matrix product.
+    Term i belongs to hypothesis h_[i]; its residual r has weight W (2x2 symmetric, any scale
+    folded in) and Jacobian J = [dr | -I] in (yaw, tx, ty); X (k, 9) are its `_summands`.
+    J^T W J = [[dr' W dr, -dr' W], [-W dr, W]] and J^T W r = [dr' W r, -W r], summed per
+    hypothesis in one matrix product.
     """
-    S = (h_ == np.arange(n)[:, None]) @ np.column_stack(
-        [(dr * Wd).sum(axis=1), Wd, W00, W01, W11, (dr * Wr).sum(axis=1), Wr])
+    S = (h_ == np.arange(n)[:, None]) @ X
     g = S[:, 6:9] * _G_SIGNS
     return (S[:, _H_FROM_SUMS] * _H_SIGNS).reshape(n, 3, 3), g
+
+
+class _VehicleTerms:
+    """The matched-vehicle terms of a refinement: each hypothesis's mutually nearest vehicle
+    pairs (Mahalanobis, best combination of the two views' estimates) within `gate`, among the
+    pairs `usable` (Va, Vb) allows; per-call quantities computed once."""
+
+    def __init__(self, A: Observations, B: Observations, usable: np.ndarray, gate: float) -> None:
+        self.Va, self.Vb, self.gate = len(A.centres), len(B.centres), gate
+        self.AB = paired(A, B)
+        self.blocked = np.where(usable, 0.0, np.inf).astype(np.float32)[:, :, None]
+        self.own_index = np.arange(self.Va)[:, None]
+        # both estimates stacked as `best_combination`'s modes index them: best, then camera
+        self.ca, self.Sa = np.concatenate([A.centres, A.cam_centres]), np.concatenate([A.cov, A.cam_cov])
+        self.cb, self.Sb = np.concatenate([B.centres, B.cam_centres]), np.concatenate([B.cov, B.cam_cov])
+
+    def terms(self, Rm: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hypothesis (k,) and `_summands` (k, 9) of the pairs of hypotheses Rm (h, 2, 2), t (h, 2)."""
+        Va, Vb = self.Va, self.Vb
+        q = combination_squares(self.AB, Rm, t)                              # (2 Va, 2 Vb, h)
+        dm = best_combination(q, Va, Vb)
+        dm += self.blocked
+        j = dm.argmin(axis=1)                                                 # (Va, h)
+        back = dm.argmin(axis=0)                                              # (Vb, h)
+        mutual = (back[j, np.arange(len(t))] == self.own_index) & (dm.min(axis=1) < self.gate)
+        h_, a_ = np.nonzero(mutual.T)                                         # h_ ascends
+        b_ = j[a_, h_]
+        m_ = modes_at(q, Va, Vb, a_, b_, h_)
+        ia, ib = (m_ >> 1) * Va + a_, (m_ & 1) * Vb + b_
+        Rk = Rm[h_]
+        rb = (Rk @ self.cb[ib][:, :, None])[..., 0]                           # R b, (k, 2)
+        r = self.ca[ia] - (rb + t[h_])
+        dr = rb[:, ::-1] * _FLIP                                              # -d(R b)/dyaw
+        W = inv2(self.Sa[ia] + Rk @ self.Sb[ib] @ Rk.transpose(0, 2, 1))
+        return h_, _summands(dr, (W @ dr[:, :, None])[..., 0], W[:, 0, 0], W[:, 0, 1], W[:, 1, 1],
+                             (W @ r[:, :, None])[..., 0])
+
+
+def _background_terms(tree: cKDTree, bg_other: np.ndarray, Rm: np.ndarray, t: np.ndarray, gate: float,
+                      trim: float, w: float) -> tuple[np.ndarray, np.ndarray]:
+    """Hypothesis (k,) and `_summands` (k, 9) of the background terms of hypotheses Rm (h, 2, 2),
+    t (h, 2): the other background (N, 2) on its nearest own point within `gate` (m), the
+    `trim` share of each hypothesis's nearest (with at least 3), weight w I each."""
+    n = len(t)
+    rot = bg_other @ Rm.transpose(0, 2, 1)                                    # R p, (h, N, 2)
+    moved = rot + t[:, None]
+    d, k = tree.query(moved.reshape(-1, 2), distance_upper_bound=gate)
+    d, k = d.reshape(n, -1), k.reshape(n, -1)                                 # d: inf beyond the gate
+    cnt = np.isfinite(d).sum(axis=1)
+    cut = np.sort(d, axis=1)[np.arange(n), np.maximum(np.ceil(trim * cnt).astype(int) - 1, 0)]
+    # the trimmed share of each hypothesis's correspondences (with >= 3, cut is finite)
+    h_, p_ = np.nonzero((d <= cut[:, None]) & (cnt[:, None] >= 3))
+    dr = rot[h_, p_][:, ::-1] * _FLIP                                         # -d(R p)/dyaw
+    r = tree.data[k[h_, p_]] - moved[h_, p_]
+    return h_, _summands(dr, w * dr, w, 0.0, w, w * r)
 
 
 def refine(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndarray, bg_other: np.ndarray,
@@ -116,12 +184,7 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
         bg_other = bg_other[np.linspace(0, len(bg_other) - 1, cfg.bg_max_points).astype(int)]
     use_bg = tree is not None and len(bg_other) >= 3
     active = np.ones(H_n, bool)
-    if len(A.centres) and len(B.centres):
-        CA = np.stack([A.centres, A.cam_centres])                 # (2, Va, 2): best, camera
-        SA = np.stack([A.cov, A.cam_cov])
-        CB = np.stack([B.centres, B.cam_centres])
-        SB = np.stack([B.cov, B.cam_cov])
-        AB = paired(A, B)
+    vehicles = _VehicleTerms(A, B, ok_pair, cfg.vehicle_gate) if len(A.centres) and len(B.centres) else None
     if use_bg:
         bg_other = np.asarray(bg_other, float)
         w = cfg.bg_weight_total / len(bg_other) / cfg.bg_sigma_m ** 2
@@ -130,44 +193,15 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
         idx = np.flatnonzero(active)
         y_a, t_a, n_a = yaw[idx], t[idx], len(idx)
         Rm = _rots(y_a)                                           # (h, 2, 2)
-        terms = []                                                # (h_, dr, W dr, W00, W01, W11, W r)
-        if len(A.centres) and len(B.centres):
-            dm, mode = mahalanobis(AB, None, Rm, t_a, with_modes=True)
-            dm = np.where(ok_pair[None], dm, np.inf)
-            j = dm.argmin(axis=2)                                 # (H, Va)
-            back = dm.argmin(axis=1)                              # (H, Vb)
-            mutual = (np.take_along_axis(back, j, axis=1) == np.arange(dm.shape[1])) \
-                & (dm.min(axis=2) < cfg.vehicle_gate)
-            h_, a_ = np.nonzero(mutual)                           # h_ ascends (C order)
-            b_ = j[h_, a_]
-            if len(h_):
-                m_ = mode[h_, a_, b_]
-                ca, Sa = CA[m_ // 2, a_], SA[m_ // 2, a_]
-                cb, Sb = CB[m_ % 2, b_], SB[m_ % 2, b_]
-                Rk = Rm[h_]
-                rb = (Rk @ cb[:, :, None])[..., 0]                            # R b, (k, 2)
-                r = ca - (rb + t_a[h_])
-                dr = np.column_stack([rb[:, 1], -rb[:, 0]])                   # -d(R b)/dyaw
-                W = inv2(Sa + Rk @ Sb @ Rk.transpose(0, 2, 1))
-                terms.append((h_, dr, (W @ dr[:, :, None])[..., 0], W[:, 0, 0], W[:, 0, 1], W[:, 1, 1],
-                               (W @ r[:, :, None])[..., 0]))
+        terms = []                                                # (hypothesis (k,), summands (k, 9))
+        if vehicles is not None:
+            terms.append(vehicles.terms(Rm, t_a))
         if use_bg:
             gate = cfg.bg_gate_start_m + (cfg.bg_gate_end_m - cfg.bg_gate_start_m) * it / max(cfg.iterations - 1, 1)
-            rot = bg_other @ Rm.transpose(0, 2, 1)                                # R p, (h, N, 2)
-            moved = rot + t_a[:, None]
-            d, k = tree.query(moved.reshape(-1, 2), distance_upper_bound=gate)
-            d, k = d.reshape(n_a, -1), k.reshape(n_a, -1)                        # d: inf beyond the gate
-            cnt = np.isfinite(d).sum(axis=1)
-            cut = np.sort(d, axis=1)[np.arange(n_a), np.maximum(np.ceil(cfg.bg_trim * cnt).astype(int) - 1, 0)]
-            # the trimmed share of each hypothesis's correspondences (with >= 3, cut is finite)
-            h_, p_ = np.nonzero((d <= cut[:, None]) & (cnt[:, None] >= 3))
-            rp = rot[h_, p_]                                                      # (m, 2)
-            dr = np.column_stack([rp[:, 1], -rp[:, 0]])                           # -d(R p)/dyaw
-            r = tree.data[k[h_, p_]] - moved[h_, p_]
-            wm, zero = np.full(len(h_), w), np.zeros(len(h_))                     # W = w I
-            terms.append((h_, dr, w * dr, wm, zero, wm, w * r))
+            terms.append(_background_terms(tree, bg_other, Rm, t_a, gate, cfg.bg_trim, w))
         if terms:
-            Hm, g = _normal_equations(n_a, *(np.concatenate(z) for z in zip(*terms)))
+            Hm, g = _normal_equations(n_a, np.concatenate([h for h, _ in terms]),
+                                      np.concatenate([x for _, x in terms]))
         else:
             Hm, g = np.zeros((n_a, 3, 3)), np.zeros((n_a, 3))
         if yaws is not None:

@@ -273,6 +273,18 @@ def test_mahalanobis_takes_the_best_of_the_four_estimate_combinations(V):
     np.testing.assert_allclose(best, ref.min(axis=3), rtol=1e-4, atol=1e-3)   # the mode is a best one
 
 
+
+@pytest.mark.parametrize("V", [1, 3, 12])
+def test_modes_at_a_few_pairs_are_the_modes_of_the_full_table(V):
+    from mmatch.ego.observations import best_combination, combination_squares, modes_at, paired
+    rng = np.random.default_rng(V)
+    A, B = _random_observations(rng, V), _random_observations(rng, V + 2)
+    R, t = np.stack([_rot(d) for d in rng.uniform(-180, 180, 6)]), rng.uniform(-20, 20, (6, 2))
+    q = combination_squares(paired(A, B), R, t)
+    _, mode = best_combination(q, V, V + 2, with_modes=True)                 # (Va, Vb, H)
+    a, b, h = np.nonzero(np.ones(mode.shape, bool))
+    np.testing.assert_array_equal(modes_at(q, V, V + 2, a, b, h), mode[a, b, h])
+
 def _boxed(points: list, box_px: tuple[float, float]) -> SharedFrame:
     """One vehicle with radar points `points` (x, y) and a camera box of (width, height) px."""
     f = _frame([None], np.array([[0.0, 30.0]]))
