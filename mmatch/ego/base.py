@@ -181,13 +181,21 @@ def descriptor_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _descriptor_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if len(a) == 0 or len(b) == 0:
         return np.zeros((len(a), len(b)))
-    sa, sb = np.sqrt(np.clip(a, 0, None)), np.sqrt(np.clip(b, 0, None))
     bc = np.zeros((len(a), len(b)))
-    for lo, hi in ((0, 16), (16, 24), (24, 32)):
-        ga = sa[:, lo:hi] / np.maximum(np.linalg.norm(sa[:, lo:hi], axis=1, keepdims=True), 1e-9)
-        gb = sb[:, lo:hi] / np.maximum(np.linalg.norm(sb[:, lo:hi], axis=1, keepdims=True), 1e-9)
+    for ga, gb in zip(_unit_groups(a), _unit_groups(b)):
         bc += ga @ gb.T
     return np.sqrt(np.clip(1 - bc / 3, 0, 1))
+
+
+def _unit_groups(x: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The H, S, V groups (V, 16), (V, 8), (V, 8) of descriptors x (V, 32) as square-root
+    histograms of unit length, in x's dtype. Once per descriptor array inside a fusion
+    (ego/memo.py): a frame's descriptors meet the other view's and their own (graph.py)."""
+    def groups() -> tuple[np.ndarray, ...]:
+        s = np.sqrt(np.clip(x, 0, None))
+        return tuple(s[:, lo:hi] / np.maximum(np.linalg.norm(s[:, lo:hi], axis=1, keepdims=True), 1e-9)
+                     for lo, hi in ((0, 16), (16, 24), (24, 32)))
+    return memo("descriptor_groups", (x,), groups)
 
 
 MIN_SPEED_FOR_HEADING = 3.0
