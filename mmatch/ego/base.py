@@ -249,8 +249,16 @@ def _yaws(angles: tuple[float, float] | None) -> np.ndarray | None:
 
 
 def _velocity_angles(own: SharedFrame, other: SharedFrame) -> tuple[float, float] | None:
+    """The two radars' directions of travel (rad, each its own frame), or None (see
+    `velocity_heading_yaws`). Once per frame pair and heading-prior setting inside a fusion
+    (ego/memo.py): the matcher, the aligner and the confidence model all ask."""
+    prior = _HEADING_PRIOR.get()
+    return memo("velocity_angles", (own, other), lambda: _directions_of_travel(own, other, prior), prior)
+
+
+def _directions_of_travel(own: SharedFrame, other: SharedFrame, prior: bool) -> tuple[float, float] | None:
     ve, vc = np.asarray(own.ego_velocity, float), np.asarray(other.ego_velocity, float)
-    if not (_HEADING_PRIOR.get() and np.all(np.isfinite(ve)) and np.all(np.isfinite(vc))):
+    if not (prior and np.all(np.isfinite(ve)) and np.all(np.isfinite(vc))):
         return None
     if np.linalg.norm(ve) < MIN_SPEED_FOR_HEADING or np.linalg.norm(vc) < MIN_SPEED_FOR_HEADING:
         return None

@@ -188,6 +188,7 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
     if use_bg:
         bg_other = np.asarray(bg_other, float)
         w = cfg.bg_weight_total / len(bg_other) / cfg.bg_sigma_m ** 2
+    heading_gate, wy = np.radians(cfg.heading_gate_deg), np.radians(cfg.heading_sigma_deg) ** -2
     for it in range(cfg.iterations):
         # only the hypotheses still moving are worked on (each one's fit is its own)
         idx = np.flatnonzero(active)
@@ -207,8 +208,7 @@ def refine_many(A: Observations, B: Observations, D: np.ndarray, bg_own: np.ndar
         if yaws is not None:
             gap = (y_a[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi
             near = gap[np.arange(n_a), np.abs(gap).argmin(axis=1)]
-            on = np.abs(near) < np.radians(cfg.heading_gate_deg)
-            wy = np.radians(cfg.heading_sigma_deg) ** -2
+            on = np.abs(near) < heading_gate
             Hm[:, 0, 0] += wy * on
             g[:, 0] += wy * near * on
         step, solvable = _solve3(Hm, -g)

@@ -15,9 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from mmatch.ego.base import AlignResult, MatchResult, heading_yaws
+from mmatch.ego.base import AlignResult, MatchResult, background_tree, heading_yaws
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
@@ -83,7 +82,7 @@ class ConstrainedAligner:
         allowed[pairs[:, 0], pairs[:, 1]] = True
         D = scaled_distance(own.vehicle_features, other.vehicle_features, match.descriptor_scale)
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
-        tree = cKDTree(bg_own) if len(bg_own) >= 3 else None
+        tree = background_tree(own)
         Rs, ts = np.stack([r for r, _ in starts]), np.stack([x for _, x in starts])
         if len(Rs) > cfg.max_candidates:
             # a few rounds for every start, then the full refinement of the distinct best
