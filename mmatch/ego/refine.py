@@ -67,7 +67,8 @@ _G_SIGNS = np.array([1.0, -1.0, -1.0])
 _FLIP = np.array([1.0, -1.0])
 
 
-def _summands(dr: np.ndarray, Wd: np.ndarray, W00, W01, W11, Wr: np.ndarray) -> np.ndarray:
+def _summands(dr: np.ndarray, Wd: np.ndarray, W00: np.ndarray | float, W01: np.ndarray | float,
+              W11: np.ndarray | float, Wr: np.ndarray) -> np.ndarray:
     """(k, 9) what k residual terms add to the sums of `_normal_equations`: dr' W dr, W dr (2),
     W00, W01, W11, dr' W r, W r (2). dr, Wd = W dr, Wr = W r: (k, 2); the weight's entries
     (k,) or one for all."""
@@ -112,9 +113,10 @@ class _VehicleTerms:
         Va, Vb = self.Va, self.Vb
         q = combination_squares(self.AB, Rm, t)                              # (2 Va, 2 Vb, h)
         dm = best_combination(q, Va, Vb)
-        dm += self.blocked
+        dm += self.blocked                                                    # inf: not usable
         j = dm.argmin(axis=1)                                                 # (Va, h)
         back = dm.argmin(axis=0)                                              # (Vb, h)
+        # (Va, h): the own vehicle is its nearest other vehicle's nearest, within the gate
         mutual = (back[j, np.arange(len(t))] == self.own_index) & (dm.min(axis=1) < self.gate)
         h_, a_ = np.nonzero(mutual.T)                                         # h_ ascends
         b_ = j[a_, h_]

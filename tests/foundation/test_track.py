@@ -225,3 +225,19 @@ def test_a_turning_radar_is_a_manoeuvre_that_searches_and_loosens_the_yaw_rate()
         axes = heading_yaws(w.frame("ego", t, True), turning)
         assert np.allclose(axes, heading_yaws(w.frame("ego", t, True), w.frame("cav", t, True)), atol=np.radians(2))
     assert velocity_heading_yaws(w.frame("ego", t, True), turning) is not None
+
+
+def test_one_fusion_remembers_the_directions_of_travel_per_heading_prior_setting():
+    """The velocity angles are computed once per frame pair inside a fusion, but a block without
+    the heading prior never sees the ones with it (nor the other way round)."""
+    from mmatch.ego.base import velocity_heading_yaws, without_heading_prior
+    from mmatch.ego.observations import observations_shared
+
+    w = World()
+    own, oth = w.frame("ego", 1.0, True), w.frame("cav", 1.0, True)
+    with observations_shared():
+        first = velocity_heading_yaws(own, oth)
+        assert first is not None
+        with without_heading_prior():
+            assert velocity_heading_yaws(own, oth) is None
+        np.testing.assert_array_equal(velocity_heading_yaws(own, oth), first)
