@@ -27,6 +27,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from mmatch.cav.frustum import Projection
+from mmatch.numeric import median
 
 TYPICAL_LOG_RATIO = -0.062    # folder median of box log ratios, calibrated depths (wide / nominal sims)
 CONTENT_BAND = 0.03           # log units: folders of calibrated cameras lie within this of it
@@ -50,12 +51,8 @@ def box_log_ratios(boxes: np.ndarray, proj: Projection | None, moving: np.ndarra
     depth = boxes[:, 5, None]
     inside = (u >= boxes[:, 0, None]) & (u <= boxes[:, 2, None]) \
         & (rng > WINDOW[0] * depth) & (rng < WINDOW[1] * depth)                      # (M, n)
-    keep = inside.sum(axis=1) >= MIN_RETURNS
-    if not keep.any():
-        return np.zeros(0)
-    ranges = np.where(inside[keep], rng, np.nan)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratios = np.log(np.nanmedian(ranges, axis=1) / depth[keep, 0])
+    out = [np.log(median(rng[row]) / d) for row, d in zip(inside, depth[:, 0]) if row.sum() >= MIN_RETURNS]
+    ratios = np.array(out, np.float64)
     return ratios[np.isfinite(ratios)]
 
 
