@@ -309,17 +309,19 @@ class _Serial:
 
 def markdown(result: dict) -> str:
     """The README table: per check, pair F1 and success with the pipeline and with perfect
-    separation, the change from the unchanged scenes, and for invariances whether they hold."""
+    separation, the change from the unchanged scenes, for invariances whether they hold, and
+    the cameras' depth scales the check's scenes calibrated to."""
     ref = result["checks"][NONE]
     rows = ["| check | kind | pipeline F1 / success | labels F1 / success | pipeline F1 change (points) | "
-            "scenes changed (pipeline / labels) |", "| --- | --- | --- | --- | --- | --- |"]
+            "scenes changed (pipeline / labels) | depth scale (Ego / CAV) |", "| --- | --- | --- | --- | --- | --- | --- |"]
     for name, e in result["checks"].items():
         p, lab = e["pipeline"], e["labels"]
         delta = 100 * (p["pair_f1"] - ref["pipeline"]["pair_f1"])
         changed = f"{p['changed_scenes']} / {lab['changed_scenes']}"
         if e["kind"] == "invariance":
             changed += " (holds)" if p["changed_scenes"] == lab["changed_scenes"] == 0 else " (BROKEN)"
-        rows.append(f"| {name} | {e['kind']} | {_figures(p)} | {_figures(lab)} | {delta:+.1f} | {changed} |")
+        scale = " / ".join(f"{x:.3f}" for x in e.get("depth_scale", (1.0, 1.0)))
+        rows.append(f"| {name} | {e['kind']} | {_figures(p)} | {_figures(lab)} | {delta:+.1f} | {changed} | {scale} |")
     return "\n".join(rows)
 
 
