@@ -46,7 +46,9 @@ class EvalConfig:
     (cav/depth_scale.py); None: `evaluate_dir` measures them on the folder (no labels used:
     each camera's boxes against its radar's moving returns), sequences over each sequence's
     frames so far (as the vehicle service), a single scene uses 1. Folders of our own physics
-    measure 1 (within the content band).
+    measure 1 (within the content band). depth_along_axis: (ego, cav) whether the camera's depths
+    run along its optical axis (turned into distances before the scale); measured with the
+    scales when those are None.
     """
 
     matcher: str = DEFAULT_MATCHER
@@ -57,6 +59,7 @@ class EvalConfig:
     confidence_model: str | None = None
     heading_prior: bool = True
     depth_scale: tuple[float, float] | None = None
+    depth_along_axis: tuple[bool, bool] = (False, False)
 
 
 _FUSERS: dict = {}
@@ -74,56 +77,74 @@ def _fuser(cfg: EvalConfig):
 
 
 def _views(scene: Scene, cfg: EvalConfig, processors: tuple | None = None):
-    se, sc = cfg.depth_scale or (1.0, 1.0)
+    cal_e, cal_c = _calibrations(cfg)
     if cfg.cav == "labels":
         from mmatch.label_frames import shared_from_labels
-        return (shared_from_labels(_depth_scaled(scene.ego, se), "ego"),
-                shared_from_labels(_depth_scaled(scene.cav, sc), "cav"), {})
+        return (shared_from_labels(_calibrated(scene.ego, cal_e), "ego"),
+                shared_from_labels(_calibrated(scene.cav, cal_c), "cav"), {})
     from functools import partial
 
     from mmatch.cav.process import process_view
-    run_ego, run_cav = processors or (partial(process_view, depth_scale=se), partial(process_view, depth_scale=sc))
+    run_ego, run_cav = processors or tuple(
+        partial(process_view, depth_scale=c.scale, depth_along_axis=c.along_axis) for c in (cal_e, cal_c))
     e, c = scene.ego, scene.cav
     own, _ = run_ego(e.points, e.boxes, e.features, e.camera, e.radar_height, e.stamp, sender="ego")
     other, times = run_cav(c.points, c.boxes, c.features, c.camera, c.radar_height, c.stamp, sender="cav")
     return own, other, times
 
 
-def _depth_scaled(view, scale: float):
-    if scale == 1.0:
-        return view
-    boxes = np.array(view.boxes, np.float32)
-    boxes[:, 5] *= scale
-    return replace(view, boxes=boxes)
+def _calibrations(cfg: EvalConfig) -> tuple:
+    """The (ego, cav) cameras' `DepthCalibration`s of a config (1, range depths when unset)."""
+    from mmatch.cav.depth_scale import DepthCalibration
+    scales = cfg.depth_scale or (1.0, 1.0)
+    return tuple(DepthCalibration(float(s), bool(a)) for s, a in zip(scales, cfg.depth_along_axis))
 
 
-def scene_depth_ratios(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+def _calibrated(view, calibration):
+    boxes = calibration.apply(view.boxes, view.camera.K)
+    return view if boxes is view.boxes else replace(view, boxes=np.asarray(boxes, np.float32))
+
+
+def scene_depth_evidence(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """The (ego, cav) cameras' depth evidence of one frame pair (cav/depth_scale.py
-    `box_log_ratios`, through the CAV-side processing as it runs)."""
+    `box_depth_evidence`, through the CAV-side processing as it runs)."""
     from mmatch.cav.process import run_view
-    return tuple(run_view(v.points, v.boxes, v.features, v.camera, v.radar_height, v.stamp).depth_log_ratios
+    return tuple(run_view(v.points, v.boxes, v.features, v.camera, v.radar_height, v.stamp).depth_evidence
                  for v in (scene.ego, scene.cav))
 
 
-def _file_depth_ratios(path: str) -> tuple[np.ndarray, np.ndarray] | None:
+def _file_depth_evidence(path: str) -> tuple[np.ndarray, np.ndarray] | None:
     from mmatch.scene_io import load_scene
     try:
-        return scene_depth_ratios(load_scene(path))
+        return scene_depth_evidence(load_scene(path))
     except MMatchError:                                     # reported by the evaluation
         return None
 
 
-def folder_depth_scales(files: list[str], jobs: int = 1) -> tuple[float, float]:
-    """The (ego, cav) cameras' depth scales from every frame pair of a folder (no labels)."""
-    from mmatch.cav.depth_scale import scale_from_ratios
+def depth_calibrations(evidence: list) -> tuple:
+    """The (ego, cav) cameras' `DepthCalibration`s from frame pairs' `scene_depth_evidence`
+    (None entries skipped): each camera's scale, the depth convention judged on both cameras
+    (one folder, one detector; one camera's boxes alone say too little)."""
+    from mmatch.cav.depth_scale import along_axis, calibrate
+    ok = [e for e in evidence if e is not None]
+    sides = [np.concatenate([e[k] for e in ok]) if ok else np.zeros((0, 2)) for k in (0, 1)]
+    along = along_axis(np.concatenate(sides))
+    return tuple(calibrate(side, along=along) for side in sides)
+
+
+def folder_depth_calibration(files: list[str], jobs: int = 1) -> tuple:
+    """The (ego, cav) cameras' `DepthCalibration`s from every frame pair of a folder (no labels)."""
     if jobs > 1 and len(files) > 1:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            ratios = list(pool.map(_file_depth_ratios, files, chunksize=8))
+            evidence = list(pool.map(_file_depth_evidence, files, chunksize=8))
     else:
-        ratios = [_file_depth_ratios(f) for f in files]
-    ratios = [r for r in ratios if r is not None]
-    return tuple(scale_from_ratios(np.concatenate([r[k] for r in ratios]) if ratios else np.zeros(0))
-                 for k in (0, 1))
+        evidence = [_file_depth_evidence(f) for f in files]
+    return depth_calibrations(evidence)
+
+
+def folder_depth_scales(files: list[str], jobs: int = 1) -> tuple[float, float]:
+    """The (ego, cav) cameras' depth scales of `folder_depth_calibration`."""
+    return tuple(c.scale for c in folder_depth_calibration(files, jobs))
 
 
 def with_folder_calibration(cfg: EvalConfig, files: list[str], jobs: int = 1) -> EvalConfig:
@@ -131,8 +152,10 @@ def with_folder_calibration(cfg: EvalConfig, files: list[str], jobs: int = 1) ->
     if cfg.descriptor_scale is None:
         cfg = replace(cfg, descriptor_scale=folder_descriptor_scale(files))
     if cfg.depth_scale is None:
-        cfg = replace(cfg, depth_scale=folder_depth_scales(files, jobs))
-        log.info("camera depth scales (ego, cav): %.3f, %.3f", *cfg.depth_scale)
+        cal = folder_depth_calibration(files, jobs)
+        cfg = replace(cfg, depth_scale=tuple(c.scale for c in cal), depth_along_axis=tuple(c.along_axis for c in cal))
+        log.info("camera depth scales (ego, cav): %.3f, %.3f; along the optical axis: %s, %s",
+                 *cfg.depth_scale, *cfg.depth_along_axis)
     return cfg
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from mmatch.errors import ConfigError, MMatchError
-from mmatch.evaluate import EvalConfig, evaluate_with, report, scene_depth_ratios
+from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_with, report, scene_depth_evidence
 from mmatch.scene_io import load_scene
 from mmatch.types import Scene, View
 
@@ -217,22 +217,16 @@ def _evaluate(task: tuple[str, str, EvalConfig]) -> dict:
     return out
 
 
-def _depth_ratios(task: tuple[str, str]) -> tuple[np.ndarray, np.ndarray] | None:
+def _depth_evidence(task: tuple[str, str]) -> tuple[np.ndarray, np.ndarray] | None:
     """One scene's camera depth evidence under one check (None: no scene)."""
     path, name = task
     try:
         scene = load_scene(path)
         if name != NONE:
             scene, _ = _perturbed(scene, CHECKS[name])
-        return scene_depth_ratios(scene)
+        return scene_depth_evidence(scene)
     except MMatchError:
         return None
-
-
-def _depth_scales(ratios: list) -> tuple[float, float]:
-    from mmatch.cav.depth_scale import scale_from_ratios
-    ok = [r for r in ratios if r is not None]
-    return tuple(scale_from_ratios(np.concatenate([r[k] for r in ok]) if ok else np.zeros(0)) for k in (0, 1))
 
 
 def _changed(a: list[dict], b: list[dict]) -> int:
@@ -270,9 +264,11 @@ def run_transfer(folder: str | Path, checks: list[str], cfg: EvalConfig = EvalCo
     with ProcessPoolExecutor(max_workers=jobs) if jobs > 1 else _Serial() as pool:
         cfgs = {n: cfg for n in names}
         if cfg.depth_scale is None:             # each check's cameras calibrated on its own scenes
-            ratios = list(pool.map(_depth_ratios, [(f, n) for n in names for f in files], chunksize=4))
-            cfgs = {n: replace(cfg, depth_scale=_depth_scales(ratios[i * len(files):(i + 1) * len(files)]))
-                    for i, n in enumerate(names)}
+            evidence = list(pool.map(_depth_evidence, [(f, n) for n in names for f in files], chunksize=4))
+            for i, n in enumerate(names):
+                cal = depth_calibrations(evidence[i * len(files):(i + 1) * len(files)])
+                cfgs[n] = replace(cfg, depth_scale=tuple(c.scale for c in cal),
+                                  depth_along_axis=tuple(c.along_axis for c in cal))
         tasks = [(f, n, replace(cfgs[n], cav=cav))
                  for n in names for cav in ("pipeline", "labels") for f in files]
         for k, r in enumerate(pool.map(_evaluate, tasks, chunksize=4)):
@@ -290,6 +286,7 @@ def run_transfer(folder: str | Path, checks: list[str], cfg: EvalConfig = EvalCo
             entry[cav] = _summary(report(block, replace(cfg, cav=cav)))
             entry[cav]["changed_scenes"] = _changed(results[j * n:(j + 1) * n], block)
         entry["depth_scale"] = list(cfgs[name].depth_scale or (1.0, 1.0))
+        entry["depth_along_axis"] = list(cfgs[name].depth_along_axis)
         out["checks"][name] = entry
     return out
 
@@ -320,7 +317,8 @@ def markdown(result: dict) -> str:
         changed = f"{p['changed_scenes']} / {lab['changed_scenes']}"
         if e["kind"] == "invariance":
             changed += " (holds)" if p["changed_scenes"] == lab["changed_scenes"] == 0 else " (BROKEN)"
-        scale = " / ".join(f"{x:.3f}" for x in e.get("depth_scale", (1.0, 1.0)))
+        scale = " / ".join(f"{x:.3f}" + (" (axis)" if a else "")
+                           for x, a in zip(e.get("depth_scale", (1.0, 1.0)), e.get("depth_along_axis", (False, False))))
         rows.append(f"| {name} | {e['kind']} | {_figures(p)} | {_figures(lab)} | {delta:+.1f} | {changed} | {scale} |")
     return "\n".join(rows)
 

@@ -40,7 +40,7 @@ from mmatch.cav import background as bg
 from mmatch.cav.accuracy import sigma_azimuth, stationary_doppler_sigma
 from mmatch.cav.clustering import main_clusters
 from mmatch.cav.config import CavConfig
-from mmatch.cav.depth_scale import RunningDepthScale, box_log_ratios
+from mmatch.cav.depth_scale import DepthCalibration, RunningDepthScale, box_depth_evidence
 from mmatch.cav.egomotion import EgoMotion, fit_egomotion
 from mmatch.cav.frustum import Separation, centres_from_boxes, grow, project, separate
 from mmatch.cav.membership import CandidateScene, assign, box_features, candidates
@@ -88,8 +88,8 @@ class CavProducts:
     point_vehicle: int32 (N,) per input row, the vehicle it was shared with, -1 if none.
     vehicle_moving: bool (V,) vehicles judged moving (the others are parked cars or boxes
         without a moving point).
-    depth_log_ratios: float64 (K,) the evidence on the camera's depth scale, from the boxes as
-        detected (cav/depth_scale.py `box_log_ratios`).
+    depth_evidence: float64 (B, 2) the evidence on the camera's depth calibration, from the
+        boxes as detected (cav/depth_scale.py `box_depth_evidence`).
     """
 
     frame: SharedFrame
@@ -98,27 +98,29 @@ class CavProducts:
     rows: np.ndarray
     point_vehicle: np.ndarray
     vehicle_moving: np.ndarray
-    depth_log_ratios: np.ndarray
+    depth_evidence: np.ndarray
 
 
 def process_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera: CameraModel,
                  radar_height: float, stamp: float, *, sender: str = "cav", seq: int = 0,
-                 config: CavConfig | None = None, depth_scale: float = 1.0) -> tuple[SharedFrame, dict[str, float]]:
+                 config: CavConfig | None = None, depth_scale: float = 1.0,
+                 depth_along_axis: bool = False) -> tuple[SharedFrame, dict[str, float]]:
     """Run the CAV-side stages on one frame.
 
     points: float32 (N, 5) x, y, z, doppler, snr (radar frame; m, m/s, dB); rows with a
         non-finite or implausible value (config `inputs`) are ignored.
     boxes: float32 (M, 6) u1, v1, u2, v2 (px), score, depth (m); features: float32 (M, 32).
     camera: intrinsics and T_cam_radar; radar_height: m; stamp: capture time, s.
-    depth_scale: factor on every box depth, this camera's calibration to the radar
-        (cav/depth_scale.py); the shared frame carries the corrected depths.
+    depth_scale / depth_along_axis: this camera's calibration to the radar (cav/depth_scale.py
+        `DepthCalibration`): a factor on every box depth, after depths along the optical axis
+        are turned into distances; the shared frame carries the corrected depths.
     Returns the shared frame (sender's radar frame) and milliseconds per stage
     {"egomotion", "separation", "clustering", "background"}. An empty frame or one without
     boxes gives a valid (possibly empty) frame, never an exception; wrong shapes raise
     CavInputError.
     """
     out = run_view(points, boxes, features, camera, radar_height, stamp, sender=sender, seq=seq,
-                   config=config, depth_scale=depth_scale)
+                   config=config, depth_scale=depth_scale, depth_along_axis=depth_along_axis)
     return out.frame, out.timings
 
 
@@ -130,23 +132,27 @@ class ViewProcessor:
     def __init__(self, config: CavConfig | None = None, depth: RunningDepthScale | None = None) -> None:
         self.config = config
         self.depth = depth or RunningDepthScale()
-        self._reported = self.depth.scale
+        self._reported = self.depth.calibration
 
     def __call__(self, points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera: CameraModel,
                  radar_height: float, stamp: float, *, sender: str = "cav",
                  seq: int = 0) -> tuple[SharedFrame, dict[str, float]]:
+        cal = self.depth.calibration
         out = run_view(points, boxes, features, camera, radar_height, stamp, sender=sender, seq=seq,
-                       config=self.config, depth_scale=self.depth.scale)
-        scale = self.depth.update(out.depth_log_ratios)
-        if abs(np.log(scale / self._reported)) > 0.01:          # a 1 % change is news
-            log.info("camera depth scale %.3f -> %.3f", self._reported, scale)
-            self._reported = scale
+                       config=self.config, depth_scale=cal.scale, depth_along_axis=cal.along_axis)
+        new = self.depth.update(out.depth_evidence)
+        was = self._reported
+        if abs(np.log(new.scale / was.scale)) > 0.01 or new.along_axis != was.along_axis:   # news
+            log.info("camera depth scale %.3f -> %.3f%s", was.scale, new.scale,
+                     ", depths along the optical axis" if new.along_axis else "")
+            self._reported = new
         return out.frame, out.timings
 
 
 def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera: CameraModel,
              radar_height: float, stamp: float, *, sender: str = "cav", seq: int = 0,
-             config: CavConfig | None = None, depth_scale: float = 1.0) -> CavProducts:
+             config: CavConfig | None = None, depth_scale: float = 1.0,
+             depth_along_axis: bool = False) -> CavProducts:
     """`process_view` with its diagnostics (same arguments; see CavProducts)."""
     cfg = config or CavConfig()
     if not (np.isfinite(depth_scale) and depth_scale > 0):
@@ -172,10 +178,8 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
 
     # ---- 2. frustum separation
     proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
-    depth_log_ratios = box_log_ratios(boxes, proj, moving)   # from the depths as detected
-    if depth_scale != 1.0:
-        boxes = boxes.copy()
-        boxes[:, 5] *= depth_scale
+    depth_evidence = box_depth_evidence(boxes, proj, moving, camera.K)   # from the depths as detected
+    boxes = DepthCalibration(float(depth_scale), bool(depth_along_axis)).apply(boxes, camera.K)
     with np.errstate(invalid="ignore"):
         canon = canonical_boxes(boxes, camera.K)             # what the wire carries of each box
         box_ok = np.all(np.isfinite(boxes), axis=1) & np.all(np.isfinite(features), axis=1) \
@@ -288,4 +292,4 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     point_vehicle = np.full(n_in, -1, np.int32)
     point_vehicle[rows[veh_idx]] = vidx
     return CavProducts(frame=frame, timings=timings, ego=ego, rows=rows, point_vehicle=point_vehicle,
-                       vehicle_moving=vehicle_moving, depth_log_ratios=depth_log_ratios)
+                       vehicle_moving=vehicle_moving, depth_evidence=depth_evidence)

@@ -14,15 +14,18 @@ from mmatch.cav.depth_scale import (
     SCALE_LIMITS,
     TYPICAL_LOG_RATIO,
     RunningDepthScale,
-    box_log_ratios,
+    DepthCalibration,
+    along_axis,
+    box_depth_evidence,
+    calibrate,
     scale_from_ratios,
 )
 from mmatch.cav.frustum import project
 from mmatch.cav.process import CavInputError, ViewProcessor, process_view, run_view
 from mmatch.edge.cli import main
-from mmatch.evaluate import EvalConfig, evaluate_dir, folder_depth_scales
+from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_dir, folder_depth_scales, scene_depth_evidence
 from mmatch.scene_io import load_scene, save_scene
-from mmatch.transfer import run_transfer
+from mmatch.transfer import CHECKS, perturb, run_transfer
 
 
 def _scaled_depths(view, factor: float):
@@ -65,14 +68,17 @@ def test_box_ratios_follow_the_depths_and_ignore_stationary_returns(hard_dir):
     proj = project(v.points[:, :3], v.camera)
     moving = np.zeros(len(v.points), bool)
     moving[products.rows] = products.ego.moving
-    base = box_log_ratios(v.boxes, proj, moving)
-    np.testing.assert_allclose(base, products.depth_log_ratios)
+    ev = box_depth_evidence(v.boxes, proj, moving, v.camera.K)
+    np.testing.assert_allclose(ev, products.depth_evidence)
+    base = ev[:, 0]
     assert len(base) >= 2 and np.all(np.abs(base) < 1.0)
+    assert np.all(ev[:, 1] >= 0) and np.all(ev[:, 1] < 0.2)            # -log cos(bearing), inside the view
     near = np.array(v.boxes, np.float64)
     near[:, 5] *= 0.95                                  # inside the window: the same returns count
-    np.testing.assert_allclose(box_log_ratios(near, proj, moving), base + np.log(1 / 0.95), atol=0.05)
-    assert len(box_log_ratios(v.boxes, proj, np.zeros(len(v.points), bool))) == 0
-    assert len(box_log_ratios(v.boxes, None, moving)) == 0
+    np.testing.assert_allclose(box_depth_evidence(near, proj, moving, v.camera.K)[:, 0], base + np.log(1 / 0.95),
+                               atol=0.05)
+    assert len(box_depth_evidence(v.boxes, proj, np.zeros(len(v.points), bool), v.camera.K)) == 0
+    assert len(box_depth_evidence(v.boxes, None, moving, v.camera.K)) == 0
 
 
 def test_a_folder_of_calibrated_cameras_keeps_its_depths(hard_dir, tmp_path):
@@ -122,13 +128,56 @@ def test_the_service_calibrates_over_its_frames(short_dir):
     np.testing.assert_allclose(got, raw * used, rtol=1e-5)
 
 
+def _ev(ratios, axis=0.0):
+    r = np.asarray(ratios, float)
+    return np.column_stack([r, np.broadcast_to(axis, r.shape)])
+
+
 def test_running_scale_forgets_old_frames():
-    assert RunningDepthScale().update(np.full(RUNNING_MIN_BOXES - 1, TYPICAL_LOG_RATIO + 0.3)) == 1.0
+    assert RunningDepthScale().update(_ev(np.full(RUNNING_MIN_BOXES - 1, TYPICAL_LOG_RATIO + 0.3))).scale == 1.0
     run = RunningDepthScale(window=200, min_boxes=50)
-    assert run.update(np.full(30, TYPICAL_LOG_RATIO + 0.3)) == 1.0          # too few yet
-    assert run.update(np.full(30, TYPICAL_LOG_RATIO + 0.3)) > 1.2
-    assert run.update(np.full(200, TYPICAL_LOG_RATIO)) == 1.0               # a recalibrated camera
-    assert run.update(np.array([np.nan, np.inf])) == 1.0
+    assert run.update(_ev(np.full(30, TYPICAL_LOG_RATIO + 0.3))).scale == 1.0          # too few yet
+    assert run.update(_ev(np.full(30, TYPICAL_LOG_RATIO + 0.3))).scale > 1.2
+    assert run.update(_ev(np.full(200, TYPICAL_LOG_RATIO))).scale == 1.0               # a recalibrated camera
+    assert run.update(_ev([np.nan, np.inf])).scale == 1.0
+
+
+def _axis_evidence(rng, n, slope):
+    x = -np.log(np.cos(rng.uniform(-0.45, 0.45, n)))
+    return np.column_stack([TYPICAL_LOG_RATIO + slope * x + rng.normal(0.0, 0.1, n), x])
+
+
+def test_depths_along_the_optical_axis_are_recognised_and_turned_into_distances(hard_dir):
+    rng = np.random.default_rng(4)
+    assert along_axis(_axis_evidence(rng, 3000, 1.0)) and not along_axis(_axis_evidence(rng, 3000, 0.0))
+    assert not along_axis(_axis_evidence(rng, 500, 1.0))                     # too few boxes to judge
+    cal = calibrate(_axis_evidence(rng, 3000, 1.0))
+    assert cal.along_axis and cal.scale == 1.0                               # distances once turned
+    # a folder's two cameras judged together: the same scenes with depths along the axis
+    scenes = [load_scene(f) for f in sorted(hard_dir.glob("*.npz"))]
+    plain = [scene_depth_evidence(s) for s in scenes] * 5               # as many boxes as a big folder
+    axis = [scene_depth_evidence(perturb(s, CHECKS["depth-z"])) for s in scenes] * 5
+    assert [c.along_axis for c in depth_calibrations(plain)] == [False, False]
+    assert [c.along_axis for c in depth_calibrations(axis)] == [True, True]
+    # and the calibration gives back the distances the detector's convention hid
+    s = scenes[0]
+    z = perturb(s, CHECKS["depth-z"]).ego.boxes
+    np.testing.assert_allclose(DepthCalibration(1.0, True).apply(z, s.ego.camera.K)[:, 5], s.ego.boxes[:, 5], rtol=1e-5)
+    assert DepthCalibration().apply(z, s.ego.camera.K) is z
+
+
+def test_the_service_recognises_depths_along_the_axis_and_holds_its_judgement():
+    rng = np.random.default_rng(5)
+    run = RunningDepthScale(window=3000, judge_every=50)
+    for _ in range(1000):
+        run.update(_axis_evidence(rng, 4, 1.0))
+    assert run.calibration.along_axis
+    for _ in range(300):                                 # a noisy stretch does not flip it back
+        run.update(_axis_evidence(rng, 4, 0.6))
+    assert run.calibration.along_axis
+    for _ in range(1000):                                # a camera that now gives distances does
+        run.update(_axis_evidence(rng, 4, 0.0))
+    assert not run.calibration.along_axis
 
 
 def test_a_broken_scale_is_refused(hard_dir):
