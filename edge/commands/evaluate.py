@@ -41,7 +41,8 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
                         "without labels; 1: as the files have them")
     p.add_argument("--depth-scale", type=_depth_scale, default=None, metavar="auto|FACTOR|EGO,CAV",
                    help="factor on each camera's box depths; auto (default): each camera calibrated to its "
-                        "radar on the folder without labels (1 within the spread of calibrated cameras; "
+                        "radar on the folder without labels, depths along the optical axis recognised and "
+                        "turned into distances (1 within the spread of calibrated cameras; "
                         "with --sequences over each sequence's frames so far, as the vehicle service "
                         "does); one factor for both cameras, or the Ego's and the CAV's")
     p.add_argument("--confidence-threshold", type=unit_interval, default=None, metavar="P",
