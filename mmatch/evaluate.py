@@ -391,6 +391,14 @@ def _subset_line(sub: dict) -> str:
             f"no estimate or right {sub['safe_rate']:.3f}")
 
 
+def _depth_calibration_text(config: dict) -> str:
+    """ "1.000 / 1.000", each camera's depth scale, "(along the axis)" after one whose depths
+    were taken as along the optical axis."""
+    scales = config.get("depth_scale") or (1.0, 1.0)
+    axis = config.get("depth_along_axis") or (False, False)
+    return " / ".join(f"{s:.3f}" + (" (along the axis)" if a else "") for s, a in zip(scales, axis))
+
+
 def format_table(rep: dict) -> str:
     """A human-readable summary of an eval report."""
     f1 = (2 * rep["pair_precision"] * rep["pair_recall"] / (rep["pair_precision"] + rep["pair_recall"])
@@ -398,7 +406,7 @@ def format_table(rep: dict) -> str:
     lines = [
         f"matcher {rep['config']['matcher']}, aligner {rep['config']['aligner']}, cav {rep['config']['cav']}, "
         f"descriptor scale {rep['config'].get('descriptor_scale') or 1.0:.3f}, camera depth scales "
-        f"{'{:.3f} / {:.3f}'.format(*(rep['config'].get('depth_scale') or (1.0, 1.0)))}",
+        f"{_depth_calibration_text(rep['config'])}",
         f"scenes {rep['scenes']}  rejected {rep['rejected']}  no estimate {rep['no_estimate']}",
         f"{'':<14}{'median':>9}{'mean':>9}{'p90':>9}",
         f"{'RRE (deg)':<14}{rep['rre_deg']['median']:>9.2f}{rep['rre_deg']['mean']:>9.2f}{rep['rre_deg']['p90']:>9.2f}",

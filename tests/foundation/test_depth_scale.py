@@ -166,6 +166,12 @@ def test_depths_along_the_optical_axis_are_recognised_and_turned_into_distances(
     assert DepthCalibration().apply(z, s.ego.camera.K) is z
 
 
+def test_the_eval_table_says_how_each_camera_was_calibrated():
+    from mmatch.evaluate import format_table, report
+    rep = report([], EvalConfig(depth_scale=(1.1, 1.0), depth_along_axis=(False, True)))
+    assert "camera depth scales 1.100 / 1.000 (along the axis)" in format_table(rep)
+
+
 def test_the_service_recognises_depths_along_the_axis_and_holds_its_judgement():
     rng = np.random.default_rng(5)
     run = RunningDepthScale(window=3000, judge_every=50)
