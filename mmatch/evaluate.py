@@ -107,10 +107,9 @@ def _calibrated(view, calibration):
 
 def scene_depth_evidence(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """The (ego, cav) cameras' depth evidence of one frame pair (cav/depth_scale.py
-    `box_depth_evidence`, through the CAV-side processing as it runs)."""
-    from mmatch.cav.process import run_view
-    return tuple(run_view(v.points, v.boxes, v.features, v.camera, v.radar_height, v.stamp).depth_evidence
-                 for v in (scene.ego, scene.cav))
+    `box_depth_evidence`, as the CAV-side processing computes it)."""
+    from mmatch.cav.process import depth_evidence
+    return tuple(depth_evidence(v.points, v.boxes, v.features, v.camera) for v in (scene.ego, scene.cav))
 
 
 def _file_depth_evidence(path: str) -> tuple[np.ndarray, np.ndarray] | None:

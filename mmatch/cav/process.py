@@ -149,6 +149,31 @@ class ViewProcessor:
         return out.frame, out.timings
 
 
+def _usable_points(points: np.ndarray, cfg: CavConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of points (N, 5) that are finite and plausible (config `inputs`), and their indices."""
+    lim = cfg.inputs
+    with np.errstate(invalid="ignore"):
+        usable = np.all(np.isfinite(points), axis=1) & np.all(np.abs(points[:, :3]) <= lim.max_range_m, axis=1) \
+            & (np.abs(points[:, 3]) <= lim.max_doppler_mps)
+    rows = np.flatnonzero(usable)
+    if len(rows) < len(points):
+        log.debug("dropping %d non-finite or implausible points", len(points) - len(rows))
+        points = points[rows]
+    return points, rows
+
+
+def depth_evidence(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera: CameraModel,
+                   config: CavConfig | None = None) -> np.ndarray:
+    """`run_view`'s `depth_evidence` (its camera depth calibration's input) without the rest of
+    the CAV side: the ego-motion fit and the projection only (a folder's first pass)."""
+    cfg = config or CavConfig()
+    points, boxes, _ = _check_inputs(points, boxes, features)
+    points, _ = _usable_points(points, cfg)
+    moving = fit_egomotion(points, cfg.egomotion, cfg.radar).moving
+    proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
+    return box_depth_evidence(boxes, proj, moving, camera.K)
+
+
 def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera: CameraModel,
              radar_height: float, stamp: float, *, sender: str = "cav", seq: int = 0,
              config: CavConfig | None = None, depth_scale: float = 1.0,
@@ -160,13 +185,7 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     points, boxes, features = _check_inputs(points, boxes, features)
     n_in = len(points)
     lim = cfg.inputs
-    with np.errstate(invalid="ignore"):
-        usable = np.all(np.isfinite(points), axis=1) & np.all(np.abs(points[:, :3]) <= lim.max_range_m, axis=1) \
-            & (np.abs(points[:, 3]) <= lim.max_doppler_mps)
-    rows = np.flatnonzero(usable)
-    if len(rows) < n_in:
-        log.debug("dropping %d non-finite or implausible points", n_in - len(rows))
-        points = points[rows]
+    points, rows = _usable_points(points, cfg)
     timings: dict[str, float] = {}
 
     # ---- 1. ego-motion: stationary vs moving

@@ -21,7 +21,7 @@ from mmatch.cav.depth_scale import (
     scale_from_ratios,
 )
 from mmatch.cav.frustum import project
-from mmatch.cav.process import CavInputError, ViewProcessor, process_view, run_view
+from mmatch.cav.process import CavInputError, ViewProcessor, depth_evidence, process_view, run_view
 from mmatch.edge.cli import main
 from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_dir, folder_depth_scales, scene_depth_evidence
 from mmatch.scene_io import load_scene, save_scene
@@ -70,6 +70,7 @@ def test_box_ratios_follow_the_depths_and_ignore_stationary_returns(hard_dir):
     moving[products.rows] = products.ego.moving
     ev = box_depth_evidence(v.boxes, proj, moving, v.camera.K)
     np.testing.assert_allclose(ev, products.depth_evidence)
+    np.testing.assert_array_equal(depth_evidence(v.points, v.boxes, v.features, v.camera), products.depth_evidence)
     base = ev[:, 0]
     assert len(base) >= 2 and np.all(np.abs(base) < 1.0)
     assert np.all(ev[:, 1] >= 0) and np.all(ev[:, 1] < 0.2)            # -log cos(bearing), inside the view
