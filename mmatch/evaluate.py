@@ -141,11 +141,6 @@ def folder_depth_calibration(files: list[str], jobs: int = 1) -> tuple:
     return depth_calibrations(evidence)
 
 
-def folder_depth_scales(files: list[str], jobs: int = 1) -> tuple[float, float]:
-    """The (ego, cav) cameras' depth scales of `folder_depth_calibration`."""
-    return tuple(c.scale for c in folder_depth_calibration(files, jobs))
-
-
 def with_folder_calibration(cfg: EvalConfig, files: list[str], jobs: int = 1) -> EvalConfig:
     """`cfg` with its descriptor and depth scales measured on `files` where it leaves them None."""
     if cfg.descriptor_scale is None:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mmatch.cav.depth_scale import box_bearings
 from mmatch.errors import ConfigError, MMatchError
 from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_with, report, scene_depth_evidence
 from mmatch.scene_io import load_scene
@@ -101,8 +102,7 @@ def _depth_offset(offset_m: float) -> Callable[[View, np.random.Generator], View
 def _depth_along_axis(view: View, rng: np.random.Generator) -> View:
     """Depth along the camera's optical axis instead of the distance to the vehicle centre."""
     boxes = np.array(view.boxes, np.float32)
-    K = np.asarray(view.camera.K, np.float64)
-    bearing = np.arctan(((boxes[:, 0] + boxes[:, 2]) / 2 - K[0, 2]) / K[0, 0])
+    bearing = box_bearings(boxes.astype(np.float64), np.asarray(view.camera.K, np.float64))
     boxes[:, 5] *= np.cos(bearing).astype(np.float32)
     return replace(view, boxes=boxes)
 

@@ -65,14 +65,14 @@ def box_depth_evidence(boxes: np.ndarray, proj: Projection | None, moving: np.nd
         & (rng > WINDOW[0] * depth) & (rng < WINDOW[1] * depth)                      # (M, n)
     K = np.asarray(K, np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        axis = -np.log(np.cos(_bearings(boxes, K)))
+        axis = -np.log(np.cos(box_bearings(boxes, K)))
         out = [(np.log(median(rng[row]) / d), a) for row, d, a in zip(inside, depth[:, 0], axis)
                if row.sum() >= MIN_RETURNS]
     ev = np.array(out, np.float64).reshape(-1, 2)
     return ev[np.isfinite(ev).all(axis=1)]
 
 
-def _bearings(boxes: np.ndarray, K: np.ndarray) -> np.ndarray:
+def box_bearings(boxes: np.ndarray, K: np.ndarray) -> np.ndarray:
     """(M,) horizontal angle of each box centre from the optical axis, rad."""
     return np.arctan(((boxes[:, 0] + boxes[:, 2]) / 2 - K[0, 2]) / K[0, 0])
 
@@ -108,7 +108,7 @@ class DepthCalibration:
         factor = np.full(len(out), self.scale)
         if self.along_axis and len(out):
             with np.errstate(invalid="ignore"):
-                factor = factor / np.cos(_bearings(np.asarray(out, np.float64), np.asarray(K, np.float64)))
+                factor = factor / np.cos(box_bearings(np.asarray(out, np.float64), np.asarray(K, np.float64)))
         out[:, 5] = out[:, 5] * factor
         return out
 

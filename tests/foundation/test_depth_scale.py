@@ -23,7 +23,7 @@ from mmatch.cav.depth_scale import (
 from mmatch.cav.frustum import project
 from mmatch.cav.process import CavInputError, ViewProcessor, depth_evidence, process_view, run_view
 from mmatch.edge.cli import main
-from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_dir, folder_depth_scales, scene_depth_evidence
+from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_dir, folder_depth_calibration, scene_depth_evidence
 from mmatch.scene_io import load_scene, save_scene
 from mmatch.transfer import CHECKS, perturb, run_transfer
 
@@ -84,7 +84,7 @@ def test_box_ratios_follow_the_depths_and_ignore_stationary_returns(hard_dir):
 
 def test_a_folder_of_calibrated_cameras_keeps_its_depths(hard_dir, tmp_path):
     files = sorted(str(f) for f in hard_dir.glob("*.npz"))
-    assert folder_depth_scales(files) == (1.0, 1.0)
+    assert [c.scale for c in folder_depth_calibration(files)] == [1.0, 1.0]
     rep, _ = evaluate_dir(hard_dir, EvalConfig())
     assert rep["config"]["depth_scale"] == [1.0, 1.0] or rep["config"]["depth_scale"] == (1.0, 1.0)
 
@@ -94,7 +94,7 @@ def test_depths_15_percent_short_are_calibrated_and_the_results_recovered(hard_d
     the depths back to within the content band, and pair F1 and success come back to within a
     few points of the calibrated cameras' (on 200 wide hard scenes of seed 5: F1 0.870 -> 0.913
     against 0.918, `mmatch transfer`)."""
-    se, sc = folder_depth_scales(sorted(str(f) for f in short_dir.glob("*.npz")))
+    se, sc = (c.scale for c in folder_depth_calibration(sorted(str(f) for f in short_dir.glob("*.npz"))))
     for s in (se, sc):                  # 1 / 0.85 = 1.18, less the band: 1.14 (30 scenes: +- 0.04)
         assert 1.05 < s < 1.2
     ref, _ = evaluate_dir(hard_dir, EvalConfig(), jobs=2)
