@@ -199,7 +199,8 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
     depth_evidence = box_depth_evidence(boxes, proj, moving, camera.K)   # from the depths as detected
     boxes = DepthCalibration(float(depth_scale), bool(depth_along_axis)).apply(boxes, camera.K)
-    with np.errstate(invalid="ignore"):
+    # a corner beyond float32 in the canonical image becomes inf there and fails max_pixel below
+    with np.errstate(invalid="ignore", over="ignore"):
         canon = canonical_boxes(boxes, camera.K)             # what the wire carries of each box
         box_ok = np.all(np.isfinite(boxes), axis=1) & np.all(np.isfinite(features), axis=1) \
             & (boxes[:, 4] >= max(cfg.separation.min_box_score, 0.0)) & (boxes[:, 4] <= 1.0) \
