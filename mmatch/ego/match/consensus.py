@@ -80,6 +80,10 @@ class ConsensusConfig:
     sighting_m: float = 3.5
     body_offset_m: float = 2.3           # radar (front bumper) to vehicle centre
     speed_weight: float = 0.5            # road-speed agreement (+1 / 0 / -1) in likeness units
+    pair_score_share: float = 0.0        # share of a pair-scoring network's score p (as 2 p - 0.5,
+                                         # likeness units) in each pair's likeness, the rest
+                                         # appearance; only a matcher with a network has one
+                                         # (`consensus-rmnet`: 0.3, its module doc)
     typical_score: float = TYPICAL_SCORE  # a frame's median detection score is lifted to at least this
     score_low: float = 0.3               # detection scores map to confidence 0 ... 1 between these
     score_high: float = 0.8
@@ -112,6 +116,7 @@ class ConsensusMatcher:
             return MatchResult()
         scale = 1.0 if ctx.descriptor_scale is None else ctx.descriptor_scale
         D = scaled_distance(own.vehicle_features, other.vehicle_features, scale)
+        P = self.pair_scores(own, other) if cfg.pair_score_share > 0 else None
         cand = _candidates(D, cfg.candidates_per_vehicle, cfg.desc_gate)
         if ctx.prior_T is not None and ctx.prior_only:
             cand = cand[:0]                   # tracking frame: the prediction is the only hypothesis
@@ -141,7 +146,7 @@ class ConsensusMatcher:
         if len(R) == 0:
             return MatchResult()
         speed = road_speed_consistency(own, other)
-        alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg))
+        alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg), P)
         veh_score = _vehicle_scores(A, B, alike_of(R), R, t, cfg)
         rank, n_refine = veh_score, cfg.refine_hypotheses
         if prior is not None:
@@ -174,6 +179,11 @@ class ConsensusMatcher:
         T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
         return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T, descriptor_scale=scale,
                            hypotheses=Hypotheses(Rr, tr, total))
+
+    def pair_scores(self, own: SharedFrame, other: SharedFrame) -> np.ndarray | None:
+        """(Va, Vb) 0-1 scores of each pair being one vehicle from a network that sees both
+        frames, weighed into the likeness (`pair_score_share`); None: this matcher has none."""
+        return None
 
     def pairs_under(self, own: SharedFrame, other: SharedFrame, R: np.ndarray, t: np.ndarray,
                     descriptor_scale: float = 1.0, observed: tuple | None = None,
@@ -242,15 +252,19 @@ def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
     return np.clip(c, cfg.min_confidence, 1.0)
 
 
-def _likeness(D, yaws, speed, cfg, conf_a, conf_b):
+def _likeness(D, yaws, speed, cfg, conf_a, conf_b, P=None):
     """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair.
 
+    P: (Va, Vb) network pair scores (0-1) or None; with them the appearance likeness takes
+    1 - cfg.pair_score_share of the weight and 2 P - 0.5 (the same -0.5 ... 1.5 range) the rest.
     With road speeds a hypothesis's likeness depends on it only through its nearest heading
     yaw: the (4, Va, Vb) likeness of each yaw is computed once and each hypothesis takes its own."""
     if cfg.desc_width > 0:   # likelihood-shaped: about 2 when clearly alike, 0 when clearly not
         alike = (2.0 / (1.0 + np.exp((D - cfg.desc_mid) / cfg.desc_width)) - 0.5)[None]
     else:
         alike = np.clip(1 - D / cfg.desc_gate, 0, None)[None]
+    if P is not None:
+        alike = (1.0 - cfg.pair_score_share) * alike + cfg.pair_score_share * (2.0 * P - 0.5)[None]
     conf = np.sqrt(conf_a[:, None] * conf_b[None, :])[None]
     if speed is None or yaws is None:
         same = (0.5 + alike) * conf - 0.5
