@@ -11,19 +11,22 @@ from __future__ import annotations
 
 import argparse
 
+from mmatch.train.request import TrainRequest
+
 HELP = "train RM-net on simulated scenes and export it to ONNX (needs the train extra)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder (figures, history, config)")
     p.add_argument("--export", default=None, help="ONNX file to write (default OUT/rmnet.onnx); card beside it")
-    p.add_argument("--scenes", type=int, default=4000, help="simulated scene pairs (easy and hard in turn)")
+    p.add_argument("--scenes", type=int, default=TrainRequest.scenes,
+                   help="simulated scene pairs (easy and hard in turn; the shipped model: 14400)")
     p.add_argument("--physics", default="wide",
                    help="simulator physics: nominal, wide (the family we train on) or a TOML file of ranges")
     p.add_argument("--dense-scenes", type=int, default=0,
                    help="extra hard scene pairs in dense traffic (--dense-vehicles other vehicles)")
     p.add_argument("--dense-vehicles", default="60-150", help="LO-HI other vehicles of a dense scene")
-    p.add_argument("--synthetic-scenes", type=int, default=0,
+    p.add_argument("--synthetic-scenes", type=int, default=TrainRequest.synthetic_scenes,
                    help="extra synthetic dense frame pairs (--synthetic-vehicles a view; the simulator's "
                         "cameras see at most 12-15 vehicles)")
     p.add_argument("--synthetic-vehicles", default="10-45", help="LO-HI vehicles a view of a synthetic pair")
@@ -39,8 +42,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmatch.train.request import TrainRequest
-
     req = TrainRequest.from_args(args)
     try:
         from mmatch.train.run import train

@@ -11,11 +11,11 @@ from mmatch.errors import ConfigError
 class TrainRequest:
     out: str
     export: str | None = None
-    scenes: int = 4000
+    scenes: int = 14400                # the shipped model's recipe (mmatch/models/rmnet.md)
     physics: str = "wide"
     dense_scenes: int = 0
     dense_vehicles: str = "60-150"
-    synthetic_scenes: int = 0
+    synthetic_scenes: int = 1800
     synthetic_vehicles: str = "10-45"
     val_share: float = 0.1
     seed: int = 1000
