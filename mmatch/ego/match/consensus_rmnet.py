@@ -1,7 +1,7 @@
 """The `consensus-rmnet` matcher (default): the consensus search fixes the transform, RM-net picks the pairs.
 
 The two matchers are good at different things. `consensus` finds the transform more often
-than `rmnet` (success 0.662 against 0.606 on 1400 wide hard scenes, seeds 1, 3, 4, 20-23),
+than `rmnet` (success 0.671 against 0.619 on 1400 wide hard scenes, seeds 1, 3, 4, 20-23),
 and its candidates carry the evidence the confidence model was fit on. RM-net knows better
 which vehicles both views share: under a given transform its assignment (Mahalanobis
 distance plus the network's score, `RMNetMatcher.pairs_under`) rejects look-alikes that
@@ -9,10 +9,9 @@ happen to lie near each other. So this matcher searches, scores and refines as `
 does, with the network's scores in its likeness (below), and the fused pairs under the
 published transform (`pairs_from_transform`, fusion.py) are RM-net's.
 
-Measured with the confidence gate on (fused pairs, `mmatch eval`): pair F1 0.835 -> 0.886 on
-1000 wide hard scenes of seeds 5-9 (precision 0.823 -> 0.916, recall 0.848 -> 0.859), 0.884
--> 0.914 on 600 wide easy scenes of seeds 11-13; success, coverage and gross rates unchanged
-by construction. Cost: the graph and one RM-net inference per frame pair (about 0.5-1 ms in
+Measured with the confidence gate on (fused pairs, `mmatch eval`; the first network, pairs
+only): pair F1 0.835 -> 0.886 on 1000 wide hard scenes of seeds 5-9 (precision 0.823 -> 0.916,
+recall 0.848 -> 0.859), 0.884 -> 0.914 on 600 wide easy scenes of seeds 11-13. Cost: the graph and one RM-net inference per frame pair (about 0.5-1 ms in
 typical traffic).
 
 Dense traffic: the consensus search draws its hypotheses from every two look-alike pairs, so
@@ -25,14 +24,14 @@ matched by `rmnet` whole, whose search grows with the square.
 The search also weighs the network's scores: each pair's likeness in the consensus score is
 0.7 appearance and 0.3 RM-net (`ConsensusConfig.pair_score_share`, RM_NET_SHARE below), so a
 true pair whose descriptors disagree still supports the transform that lays it on itself, and
-look-alikes the network tells apart support less. With the network retrained on the current
-CAV side (2026-12-05, mmatch/models/rmnet.md), chosen on wide hard seeds 1, 3, 4, 20-23 from
-shares 0 / 0.15 / 0.3 / 0.5 / 0.7: pair F1 0.922 / 0.924 / 0.927 / 0.928 / 0.926, success
-0.662 / 0.662 / 0.654 / 0.645 / 0.627, gross at coverage 0.8 0.019 / 0.019 / 0.017 / 0.018 /
-0.017 (the confidence model was fit on unblended scores: the larger shares emit less); held out
-(seeds 2, 5-9, 14-16) 0 -> 0.3: F1 0.926 -> 0.933, success 0.654 -> 0.653, gross at coverage
-0.8 0.018 -> 0.017. Below two vehicles a view the network scores nothing and appearance alone
-counts. The transforms therefore differ from `consensus`'s.
+look-alikes the network tells apart support less. Chosen on wide hard seeds 1, 3, 4, 20-23 with
+the network retrained on the current CAV side (2026-12-05, mmatch/models/rmnet.md), shares 0 /
+0.15 / 0.3 / 0.5: pair F1 0.925 / 0.931 / 0.933 / 0.932, success 0.671 / 0.674 / 0.662 / 0.649,
+gross at coverage 0.8 0.020 / 0.021 / 0.018 / 0.018 (the confidence model was fit on scores
+without the network: the larger shares emit less). Held out (seeds 2, 5-9, 14-16, 1800
+scenes) 0 -> 0.3: F1 0.930 -> 0.939, success 0.660 -> 0.655, gross at coverage 0.8 0.016 ->
+0.015: pairs and ranking for half a point of success. Below two vehicles a view the network
+scores nothing and appearance alone counts. The transforms therefore differ from `consensus`'s.
 
 The ONNX model loads when the matcher is built: a missing or corrupt file fails at start,
 naming the file (rmnet_runtime.py).
