@@ -60,7 +60,9 @@ class RMNetConfig:
     """
 
     model_path: str | None = None
-    top_k: int = 3                      # partners kept per vehicle (each side)
+    top_k: int = 2                      # partners kept per vehicle (each side); 3 before the retrained
+                                        # network (top-3 recall 1.000): same results on 1500 scenes,
+                                        # dense Ego path 19.7 -> 17.3 ms median (README)
     min_prob: float = 0.02              # candidate pairs score at least this
     desc_candidates: int = 2            # also keep each vehicle's best look-alikes by descriptor (0: none)
     desc_candidate_weight: float = 0.5  # their weight: this times the descriptor likeness (0-1), if above p
