@@ -9,7 +9,7 @@ from mmatch.ego.track import TrackConfig, Tracker
 from mmatch.ego.track.filter import Candidate, pose_of
 from mmatch.fusion import Fuser, FusionConfig
 from mmatch.metrics import rre_deg, rte_m
-from mmatch.shared import SharedFrame
+from mmatch.shared import CANONICAL_FOCAL_PX, SharedFrame
 
 
 def _rot(deg: float) -> np.ndarray:
@@ -21,16 +21,28 @@ def _world_T(x: float, y: float, yaw_deg: float) -> np.ndarray:
     return se2_to_matrix(_rot(yaw_deg), np.array([x, y]))
 
 
-def _frame(sender: str, stamp: float, velocity, vehicles: np.ndarray, background: np.ndarray) -> SharedFrame:
-    """A shared frame with one radar point per (parked) vehicle; the reader corrects its far side."""
+def _boxes(vehicles: np.ndarray) -> np.ndarray:
+    """(V, 6) canonical-image boxes of 1.8 m x 1.5 m cars at (x, y) (radar frame, camera looking
+    along +y beside it), score 0.9, depth their distance: what a camera would report."""
+    x, y = vehicles[:, 0], np.maximum(vehicles[:, 1], 1.0)
+    f = CANONICAL_FOCAL_PX
+    return np.column_stack([f * (x - 0.9) / y, -f * 1.0 / y, f * (x + 0.9) / y, f * 0.5 / y,
+                            np.full(len(x), 0.9), np.hypot(x, y)]).astype(np.float32).reshape(-1, 6)
+
+
+def _frame(sender: str, stamp: float, velocity, vehicles: np.ndarray, background: np.ndarray,
+           car_velocity: np.ndarray | None = None) -> SharedFrame:
+    """A shared frame with one radar point per vehicle (moving at car_velocity (V, 2), this
+    radar's frame, m/s; parked without); the reader corrects its far side."""
     V = len(vehicles)
     u = vehicles / np.maximum(np.linalg.norm(vehicles, axis=1, keepdims=True), 1e-6)
     near = vehicles - 1.4 * u
-    doppler = -(u @ np.asarray(velocity, float))                  # stationary targets
+    rel = (np.zeros((V, 2)) if car_velocity is None else car_velocity) - np.asarray(velocity, float)
+    doppler = np.einsum("vi,vi->v", u, rel)
     return SharedFrame(sender, 0, stamp, 0.5, ego_velocity=np.asarray(velocity, float),
                        vehicle_points=np.c_[near, np.zeros(V), doppler, np.full(V, 10.0)].astype(np.float32),
                        vehicle_index=np.arange(V, dtype=np.int32),
-                       vehicle_boxes=np.tile(np.array([0, 0, 10, 10, 0.9, 20], np.float32), (V, 1)),
+                       vehicle_boxes=_boxes(vehicles),
                        vehicle_box_index=np.arange(V, dtype=np.int32),
                        vehicle_centers=vehicles.astype(np.float32).reshape(-1, 2),
                        vehicle_features=np.tile(np.eye(32, dtype=np.float32)[[0, 16, 24]].sum(0), (V, 1)),
@@ -38,11 +50,13 @@ def _frame(sender: str, stamp: float, velocity, vehicles: np.ndarray, background
 
 
 class World:
-    """Two radars driving straight (the CAV turned 90 deg), cars and walls fixed in the world."""
+    """Two radars driving straight (the CAV turned 90 deg), walls fixed in the world, three cars
+    driving along the Ego's road at 8 m/s (the CAV side shares moving vehicles only)."""
 
     def __init__(self) -> None:
         self.v_ego, self.v_cav = np.array([0.0, 12.0]), np.array([0.0, 9.0])   # own-frame velocities
-        self.cars = np.array([[-3.0, 40.0], [4.0, 46.0], [-6.0, 55.0]])
+        self.cars = np.array([[-3.0, 40.0], [4.0, 46.0], [-6.0, 55.0]])   # at t = 5 s
+        self.v_cars = np.array([0.0, 8.0])                                   # all drive along +y
         wall = np.column_stack([np.full(80, 9.0), np.linspace(0, 90, 80)])
         wall2 = np.column_stack([np.linspace(-30, 9, 40), np.full(40, 70.0)])
         self.walls = np.vstack([wall, wall2, wall * [-1, 1]])
@@ -62,9 +76,9 @@ class World:
             return p @ inv[:2, :2].T + inv[:2, 3]
         bg = local(self.walls)
         bg = bg[(bg[:, 1] > 1) & (np.abs(np.arctan2(bg[:, 0], bg[:, 1])) < np.radians(60))]
-        cars = local(self.cars) if with_cars else np.zeros((0, 2))
+        cars = local(self.cars + self.v_cars * (t - 5.0)) if with_cars else np.zeros((0, 2))
         v = self.v_ego if who == "ego" else self.v_cav
-        return _frame(who, t, v, cars, bg)
+        return _frame(who, t, v, cars, bg, np.tile(inv[:2, :2] @ self.v_cars, (len(cars), 1)))
 
     def drive(self, n: int, t0: float = 3.0):
         """n frame pairs at 20 Hz, the Ego capturing 20 ms after the CAV: (t, own, other)."""
