@@ -80,7 +80,7 @@ def _prf(c):
 def test_the_networks_scores_in_the_search_find_more_pairs(wide_hard):
     """The default weighs RM-net's pair scores in the consensus likeness (share 0.3): on these
     40 scenes its pairs are at least as good as without (1400 wide hard scenes of seeds 1, 3,
-    4, 20-23: pair F1 0.922 -> 0.927), and a view with fewer than two vehicles has no scores."""
+    4, 20-23: pair F1 0.925 -> 0.933), and a view with fewer than two vehicles has no scores."""
     from mmatch.ego.match.consensus import ConsensusConfig
     from mmatch.ego.match.consensus_rmnet import RM_NET_SHARE, ConsensusRMNetMatcher
     default = get_matcher(DEFAULT_MATCHER)

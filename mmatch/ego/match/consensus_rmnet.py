@@ -11,8 +11,9 @@ published transform (`pairs_from_transform`, fusion.py) are RM-net's.
 
 Measured with the confidence gate on (fused pairs, `mmatch eval`; the first network, pairs
 only): pair F1 0.835 -> 0.886 on 1000 wide hard scenes of seeds 5-9 (precision 0.823 -> 0.916,
-recall 0.848 -> 0.859), 0.884 -> 0.914 on 600 wide easy scenes of seeds 11-13. Cost: the graph and one RM-net inference per frame pair (about 0.5-1 ms in
-typical traffic).
+recall 0.848 -> 0.859), 0.884 -> 0.914 on 600 wide easy scenes of seeds 11-13. Cost: the graph
+and one RM-net inference per frame pair (about 0.5-1 ms in typical traffic), computed once per
+fusion and shared by the search, the pairs and the confidence evidence.
 
 Dense traffic: the consensus search draws its hypotheses from every two look-alike pairs, so
 its cost grows with the fourth power of the vehicles in view until its coarse budget caps it
