@@ -204,7 +204,8 @@ class Fuser:
                     candidates=cands)
         ccfg = self.config.confidence
         thr = self._threshold if velocity_heading_yaws(own, other) is not None else self._threshold_no_heading
-        ambiguous = thr > 0 and a.features.get("margin", 1.0) < ccfg.min_margin
+        ambiguous = thr > 0 and ccfg.min_margin is not None \
+            and a.features.get("margin", 1.0) < ccfg.min_margin
         lone = thr > 0 and a.features.get("n_pairs", 2.0) <= 1 and a.features.get("sighting", 1.0) <= 0 \
             and a.confidence < ccfg.single_pair_threshold
         if a.confidence < thr or ambiguous or lone:

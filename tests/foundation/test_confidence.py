@@ -230,6 +230,31 @@ def test_an_estimate_on_one_unconfirmed_pair_needs_the_single_pair_threshold(mon
         assert res.reason == "too few vehicles" and res.refused_T is not None
 
 
+@pytest.mark.parametrize("min_margin, margin, status", [
+    (None, -2.0, "fused"),                 # default: the margin weighs in the probability only
+    (0.0, -2.0, "no-estimate"),            # a gate: the matcher's own evidence prefers another pose
+    (0.0, 0.5, "fused"),
+])
+def test_the_margin_gate_is_off_unless_configured(monkeypatch, min_margin, margin, status):
+    from mmatch.ego.confidence import Assessment, ConfidenceConfig
+    from mmatch.fusion import FusionConfig, Fuser
+    from mmatch.label_frames import shared_from_labels
+    scene = scene_from_world(CASES["one co-visible vehicle"](), 0, "nominal", name="one")
+    fuser = Fuser(FusionConfig(confidence=ConfidenceConfig(min_margin=min_margin)))
+    assert ConfidenceConfig().min_margin is None
+
+    def arbitrate(own, other, match, aligned):
+        a = Assessment(0.9, np.eye(3) * 0.01, 0.0, "poor fit",
+                       dict.fromkeys(FEATURES, 0.0) | {"n_pairs": 3.0, "sighting": 1.0, "margin": margin})
+        return aligned.T, a, [(aligned.T, a)], np.zeros((0, 2), np.int32)
+
+    monkeypatch.setattr(fuser, "_arbitrate", arbitrate)
+    res = fuser.fuse(shared_from_labels(scene.ego, "ego"), shared_from_labels(scene.cav, "cav"))
+    assert res.status == status, res.reason
+    if status == "no-estimate":
+        assert res.reason == "ambiguous"
+
+
 def test_rmnet_evidence_is_higher_at_the_truth_than_at_a_slide(hard_dir):
     """RM-net scores pairs knowing nothing of the pose: at the true transform its assignment
     finds partners it calls alike; slid 15 m along or across, the same network finds fewer and
