@@ -116,6 +116,7 @@ class Fuser:
         self._pairs_by_rmnet = self._pairs_from_transform and bool(getattr(self.matcher, "pairs_by_rmnet", False))
         self._threshold = threshold(config.confidence)
         self._threshold_no_heading = threshold(config.confidence, heading=False)
+        self._track_threshold = threshold(config.confidence, tracked=True)
         self._extra = config.extra_hypotheses if config.extra_hypotheses is not None else \
             (OWN_EXTRA_HYPOTHESES if config.aligner == DEFAULT_ALIGNER else 0)
         self._per_direction = config.extra_per_direction if config.extra_per_direction is not None else \
@@ -270,8 +271,9 @@ class Fuser:
         sure = dict(confidence=confidence, covariance=cov, ambiguity=a.ambiguity if a is not None else float("nan"),
                     evidence=dict(a.features) if a is not None else {}, candidates=cands)
         young = hyp.hits < self.tracker.cfg.min_hits
-        if confidence < self._threshold or young:
-            reason = "unconfirmed" if young and confidence >= self._threshold else (reason or "track not sure")
+        thr = self._track_threshold
+        if confidence < thr or young:
+            reason = "unconfirmed" if young and confidence >= thr else (reason or "track not sure")
             return FusionResult("no-estimate", reason, objects=own_objs, timings=timings,
                                 refused_T=T, **sure)
         return FusionResult("fused", "" if hit else "tracked", T, pairs, merge_objects(own, other, T, pairs),

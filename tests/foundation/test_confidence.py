@@ -255,6 +255,15 @@ def test_the_margin_gate_is_off_unless_configured(monkeypatch, min_margin, margi
         assert res.reason == "ambiguous"
 
 
+def test_a_track_is_published_at_its_own_threshold_unless_one_is_set():
+    from mmatch.ego.confidence import ConfidenceConfig, load_model, threshold
+    model = load_model()
+    assert threshold() == pytest.approx(model.threshold)
+    assert threshold(tracked=True) == 0.46 != threshold()
+    assert threshold(ConfidenceConfig(track_threshold=None), tracked=True) == threshold()
+    assert threshold(ConfidenceConfig(threshold=0.0), tracked=True) == 0.0     # emit everything
+
+
 def test_rmnet_evidence_is_higher_at_the_truth_than_at_a_slide(hard_dir):
     """RM-net scores pairs knowing nothing of the pose: at the true transform its assignment
     finds partners it calls alike; slid 15 m along or across, the same network finds fewer and
