@@ -11,8 +11,8 @@ import numpy as np
 
 from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres,
                              velocity_heading_yaws, without_heading_prior)
-from mmatch.ego.confidence import (ConfidenceConfig, PairContext, assess_many, shared_view, threshold,
-                                   vehicle_distances)
+from mmatch.ego.confidence import (ConfidenceConfig, PairContext, assess_many, refusal, shared_view,
+                                   threshold, vehicle_distances)
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import near_transforms, rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
@@ -205,16 +205,13 @@ class Fuser:
                     candidates=cands)
         ccfg = self.config.confidence
         thr = self._threshold if velocity_heading_yaws(own, other) is not None else self._threshold_no_heading
-        ambiguous = thr > 0 and ccfg.min_margin is not None \
-            and a.features.get("margin", 1.0) < ccfg.min_margin
-        lone = thr > 0 and a.features.get("n_pairs", 2.0) <= 1 and a.features.get("sighting", 1.0) <= 0 \
-            and a.confidence < ccfg.single_pair_threshold
-        if a.confidence < thr or ambiguous or lone:
+        why = refusal(a.confidence, a.features, thr, ccfg)
+        if why is not None:
             # not sure enough, the matcher's own evidence prefers a distinct alternative (two
             # judges disagree: ambiguous), or one unconfirmed pair carries it; the vehicles both
             # probably see stay reported (with the estimate's confidence); the objects are not
             # merged without a transform
-            reason = a.reason if a.confidence < thr else "ambiguous" if ambiguous else "too few vehicles"
+            reason = a.reason if why == "threshold" else why
             return FusionResult("no-estimate", reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings, refused_T=T, **sure)
         return FusionResult("fused", "", T, match.pairs, merge_objects(own, other, T, match.pairs), timings, **sure)

@@ -14,7 +14,7 @@ HELP = "fit the confidence model (P(within 2 m / 5 deg)) on folders of scene fil
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("folders", nargs="+", help="folders of *.npz scene files (with ground truth)")
+    p.add_argument("folders", nargs="*", help="folders of *.npz scene files (with ground truth) to fit on")
     p.add_argument("--out", default=None,
                    help="model file to write (default: the packaged mmatch/ego/confidence_model.json)")
     p.add_argument("--max-gross", type=float, default=0.015,
@@ -31,6 +31,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trees-only", action="store_true",
                    help="keep the model file's regressions, thresholds and inflations; refit only the boosted "
                         "trees and choosers (on the default matcher's candidates)")
+    p.add_argument("--threshold-on", action="append", default=[], metavar="FOLDER[,FOLDER...]",
+                   help="a family of tuning folders (repeat for each family, e.g. wide and a harsher physics): "
+                        "the threshold becomes the lowest (a multiple of 0.01) at which the gross rate among the "
+                        "estimates a single frame emits, with the Fuser's other gates, stays within "
+                        "--threshold-max-gross in every family (the default matcher, heading prior on; the model "
+                        "for frame pairs without one keeps its threshold)")
+    p.add_argument("--threshold-max-gross", type=float, default=0.01,
+                   help="the gross rate among the emitted each --threshold-on family must keep")
+    p.add_argument("--threshold-only", action="store_true",
+                   help="keep the model file as it is and choose only its threshold (needs --threshold-on)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,17 +55,27 @@ def run(args: argparse.Namespace) -> int:
     for m in matchers:
         if m not in MATCHERS:
             raise ParseError(f"--matchers: unknown matcher {m!r}; choose from {', '.join(sorted(MATCHERS))}")
-    for folder in args.folders:
+    families = [[f for f in fam.split(",") if f] for fam in args.threshold_on]
+    for folder in [*args.folders, *(f for fam in families for f in fam)]:
         if not Path(folder).is_dir() or not any(Path(folder).glob("*.npz")):
             raise ParseError(f"{folder}: not a folder of *.npz scene files")
     if args.trees_only and not args.trees:
         raise ParseError("--trees-only and --no-trees contradict each other")
+    if args.threshold_only and not families:
+        raise ParseError("--threshold-only needs at least one --threshold-on family")
+    if not args.folders and not args.threshold_only:
+        raise ParseError("give the folders to fit on (or --threshold-only)")
+    if not 0.0 <= args.threshold_max_gross < 1.0:
+        raise ParseError(f"--threshold-max-gross: {args.threshold_max_gross} is not in [0, 1)")
     out = Path(args.out) if args.out else MODEL_PATH
-    if args.trees_only:
+    if args.trees_only or args.threshold_only:
+        what = "--trees-only" if args.trees_only else "--threshold-only"
         kept = load_model(str(out)) if args.out else load_model()
         if kept is None:
-            raise ParseError(f"--trees-only: no model at {out} to keep")
-        model = _with_trees(kept, None, args)
+            raise ParseError(f"{what}: no model at {out} to keep")
+        model = _with_trees(kept, None, args) if args.trees_only else kept
+        if families:
+            model = _with_threshold(model, families, args)
         out.write_text(model.to_json() + "\n")
         _report(model)
         print(f"wrote {out}")
@@ -71,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
             current, model_path = None, str(Path(tmp) / "neutral.json")
             Path(model_path).write_text(neutral_model().to_json())
         priors = [True, False] if args.without_heading else [True]
-        results = {heading: _evaluate(args, matchers, model_path, heading, "fit") for heading in priors}
+        results = {heading: _evaluate(args.folders, matchers, model_path, heading, "fit", args.jobs)
+                   for heading in priors}
     meta = {"folders": args.folders, "matchers": matchers}
     try:
         model = fit_model(results[True], args.max_gross, args.min_coverage, meta=meta,
@@ -86,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
             model = _with_trees(model, reuse, args)
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
+    if families:
+        model = _with_threshold(model, families, args)
     out.write_text(model.to_json() + "\n")
     _report(model)
     print(f"wrote {out}")
@@ -112,6 +135,25 @@ def _with_trees(model, reuse: list[dict] | None, args: argparse.Namespace):
     return out
 
 
+def _with_threshold(model, families: list[list[str]], args: argparse.Namespace):
+    """`model` with the threshold `gated_threshold` chooses on the tuning families, each run
+    under `model` by the default matcher with every candidate emitted."""
+    from mmatch.ego.confidence_fit import gated_threshold
+    from mmatch.ego.registry import DEFAULT_MATCHER
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "model.json"
+        path.write_text(model.to_json())
+        runs = [_evaluate(fam, [DEFAULT_MATCHER], str(path), True, "threshold", args.jobs) for fam in families]
+    thr, per = gated_threshold(runs, args.threshold_max_gross)
+    for fam, res in zip(families, per):
+        print(f"threshold {thr:.2f} on {','.join(fam)}: emitted {res['emitted']:.3f}, success {res['success']:.3f}, "
+              f"gross among emitted {res['gross']:.4f}")
+    choice = (f"{thr:.2f}: the lowest (a multiple of 0.01) at which gross among the emitted stays within "
+              f"{args.threshold_max_gross} on each of " + "; ".join(",".join(f) for f in families))
+    return replace(model, threshold=thr, meta=dict(model.meta, threshold_choice=choice))
+
+
 def _runs(model, args: argparse.Namespace, heading: bool) -> list[dict]:
     """The default matcher's per-scene results on the folders under `model`, every candidate
     emitted, with or without the heading prior."""
@@ -120,11 +162,11 @@ def _runs(model, args: argparse.Namespace, heading: bool) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.json"
         path.write_text(model.to_json())
-        return _evaluate(args, [DEFAULT_MATCHER], str(path), heading, "fit trees")
+        return _evaluate(args.folders, [DEFAULT_MATCHER], str(path), heading, "fit trees", args.jobs)
 
 
-def _evaluate(args: argparse.Namespace, matchers: list[str], model_path: str | None, heading: bool,
-              label: str) -> list[dict]:
+def _evaluate(folders: list[str], matchers: list[str], model_path: str | None, heading: bool,
+              label: str, jobs: int) -> list[dict]:
     """Per-scene results of every folder under each matcher (folder by folder), every candidate
     emitted, under the confidence model at model_path (None: the packaged one), with or
     without the heading prior."""
@@ -132,11 +174,11 @@ def _evaluate(args: argparse.Namespace, matchers: list[str], model_path: str | N
     from mmatch.evaluate import EvalConfig, evaluate_dir
 
     results: list[dict] = []
-    for folder in args.folders:
+    for folder in folders:
         for m in matchers:
             cfg = EvalConfig(matcher=m, confidence_threshold=0.0, confidence_model=model_path, heading_prior=heading)
             progress = Progress(f"{label} {m}" + ("" if heading else " without heading"))
-            _, res = evaluate_dir(folder, cfg, args.jobs, progress)
+            _, res = evaluate_dir(folder, cfg, jobs, progress)
             results.extend(res)
     return results
 

@@ -828,6 +828,23 @@ def evidence(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndar
     return dict(zip(FEATURES, map(float, X[0]))), cov[0], float(amb[0])
 
 
+def refusal(confidence: float, features: dict, thr: float, cfg: ConfidenceConfig = ConfidenceConfig()) -> str | None:
+    """Why a single frame's estimate of this confidence and evidence is refused at threshold
+    `thr`, or None when it is fused: "threshold" (not sure enough), "ambiguous" (the margin
+    gate, when `cfg.min_margin` is set) or "too few vehicles" (one unconfirmed pair below
+    `cfg.single_pair_threshold`). A threshold of 0 emits everything."""
+    if thr <= 0:
+        return None
+    if confidence < thr:
+        return "threshold"
+    if cfg.min_margin is not None and features.get("margin", 1.0) < cfg.min_margin:
+        return "ambiguous"
+    if features.get("n_pairs", 2.0) <= 1 and features.get("sighting", 1.0) <= 0 \
+            and confidence < cfg.single_pair_threshold:
+        return "too few vehicles"
+    return None
+
+
 def threshold(cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True, tracked: bool = False) -> float:
     """The probability below which an estimate is refused (0 without a model): the configured
     one, else (tracked) the configured one for a track's hypotheses, else the fitted model's for

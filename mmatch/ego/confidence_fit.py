@@ -12,6 +12,10 @@ Beside the regression, `fit_tree_stage` fits boosted trees (ego/confidence_trees
 default matcher's candidates, whose mean with the regression is the confidence, and the chooser
 that picks among a frame pair's candidates.
 
+`gated_threshold` chooses the threshold instead on tuning families (e.g. wide physics and a
+harsher one): the lowest at which the gross rate among what a single frame emits, with the
+Fuser's other gates (`confidence.refusal`), stays within a bound in every family.
+
 Choose the seeds you fit on apart from those you report on.
 """
 
@@ -21,7 +25,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from mmatch.ego.confidence import CHI2_3_95, FEATURES, ProbabilityModel
+from mmatch.ego.confidence import CHI2_3_95, FEATURES, ConfidenceConfig, ProbabilityModel, refusal
 from mmatch.ego.confidence_trees import CHOOSER_SETTINGS, TREE_SETTINGS, choice_features, fit_trees
 
 
@@ -71,6 +75,36 @@ def choose_threshold(p: np.ndarray, gross: np.ndarray, n_scenes: int, max_gross:
     if k < need <= len(p) - 1 and cum_gross[need] <= 2 * max_gross:
         k = need
     return float(p[order[k]] - 1e-9)
+
+
+def gated_threshold(families: list[list[dict]], max_gross: float, cfg: ConfidenceConfig = ConfidenceConfig(),
+                    step: float = 0.01) -> tuple[float, list[dict]]:
+    """The lowest threshold (a multiple of `step`) at which the gross rate among the estimates a
+    single frame emits (the threshold with the Fuser's other gates, `refusal`) stays <=
+    max_gross in every family:
+    each family the per-scene results of `mmatch.evaluate` at threshold 0 (a scene's chosen
+    candidate with its confidence, evidence and whether it is gross). Returns the threshold and,
+    per family, its emitted share, success and gross rate there (a threshold above every gross
+    estimate holds by emitting nothing; 1.0 when none below 1 does)."""
+    rows = [[(float(np.nan_to_num(r["confidence"], nan=-1.0)), r.get("evidence") or {},
+              bool(r["candidate"]["gross"]), bool(r["candidate"]["success"]))
+             for r in fam if r.get("candidate") and r.get("confidence") is not None] for fam in families]
+    sizes = [max(len(fam), 1) for fam in families]
+
+    def outcome(thr: float) -> list[dict]:
+        out = []
+        for fam, n in zip(rows, sizes):
+            kept = [(g, ok) for c, ev, g, ok in fam if refusal(c, ev, thr, cfg) is None]
+            gross = sum(g for g, _ in kept)
+            out.append(dict(emitted=len(kept) / n, success=sum(ok for _, ok in kept) / n,
+                            gross=gross / len(kept) if kept else 0.0))
+        return out
+
+    for thr in np.round(np.arange(1, int(round(1 / step))) * step, 6):
+        res = outcome(float(thr))
+        if all(f["gross"] <= max_gross for f in res):
+            return float(thr), res
+    return 1.0, outcome(1.0)
 
 
 def neutral_model() -> ProbabilityModel:

@@ -132,3 +132,20 @@ def test_a_stale_packaged_model_does_not_stop_the_fit(folder, tmp_path, stale_pa
     model = _check(out)
     assert np.any(model.coef != 0)
     assert stale_package.read_text() != out.read_text()      # --out, not the package, was written
+
+
+def test_threshold_only_keeps_the_model_and_chooses_its_threshold_on_tuning_families(folder, tmp_path, capsys):
+    out = tmp_path / "model.json"
+    out.write_text(confidence.MODEL_PATH.read_text())
+    kept = ProbabilityModel.from_json(out.read_text())
+    assert main(["fit-confidence", "--threshold-only", "--threshold-on", f"{folder},{folder}",
+                 "--threshold-on", str(folder), "--threshold-max-gross", "0.2", "--out", str(out)]) == 0
+    model = ProbabilityModel.from_json(out.read_text())
+    np.testing.assert_array_equal(model.coef, kept.coef)
+    assert model.inflation == kept.inflation and model.without_heading.threshold == kept.without_heading.threshold
+    assert 0.0 < model.threshold <= 1.0 and round(model.threshold * 100) == pytest.approx(model.threshold * 100)
+    assert model.meta["threshold_choice"].startswith(f"{model.threshold:.2f}: ")
+    assert capsys.readouterr().out.count(f"threshold {model.threshold:.2f} on ") == 2
+    for bad in (["--threshold-only"], [], ["--threshold-only", "--threshold-on", str(folder), "--threshold-max-gross", "1.5"],
+                ["--threshold-only", "--threshold-on", str(tmp_path / "missing")]):
+        assert main(["fit-confidence", *bad, "--out", str(out)]) == 2, bad

@@ -264,6 +264,39 @@ def test_a_track_is_published_at_its_own_threshold_unless_one_is_set():
     assert threshold(ConfidenceConfig(threshold=0.0), tracked=True) == 0.0     # emit everything
 
 
+def test_refusal_names_the_gate_a_single_frame_fails():
+    from mmatch.ego.confidence import ConfidenceConfig, refusal
+    two = {"n_pairs": 2.0, "sighting": 0.0, "margin": -1.0}
+    lone = {"n_pairs": 1.0, "sighting": 0.0, "margin": 1.0}
+    assert refusal(0.30, two, 0.42) == "threshold"
+    assert refusal(0.50, two, 0.42) is None                        # no margin gate by default
+    assert refusal(0.50, two, 0.42, ConfidenceConfig(min_margin=0.0)) == "ambiguous"
+    assert refusal(0.50, lone, 0.42) == "too few vehicles"         # below the single-pair 0.75
+    assert refusal(0.80, lone, 0.42) is None
+    assert refusal(0.50, dict(lone, sighting=1.0), 0.42) is None    # the other vehicle seen where it should be
+    assert refusal(0.01, lone, 0.0) is None                        # threshold 0 emits everything
+
+
+def test_the_gated_threshold_holds_the_gross_rate_in_every_family():
+    from mmatch.ego.confidence_fit import gated_threshold
+
+    def scene(conf, gross, n_pairs=2.0):
+        return {"confidence": conf, "evidence": {"n_pairs": n_pairs, "sighting": 0.0},
+                "candidate": {"gross": gross, "success": not gross}}
+    wide = [scene(0.9, False)] * 8 + [scene(0.5, True), scene(0.6, False)]
+    harsh = [scene(0.8, False)] * 4 + [scene(0.65, True)]
+    thr, per = gated_threshold([wide, harsh], 0.0)
+    assert thr == pytest.approx(0.66)                               # above both gross estimates
+    assert per[0] == pytest.approx({"emitted": 0.8, "success": 0.8, "gross": 0.0})
+    assert per[1]["emitted"] == pytest.approx(0.8) and per[1]["gross"] == 0.0
+    assert gated_threshold([wide], 0.0)[0] == pytest.approx(0.51)
+    # a lone unconfirmed pair is refused below the single-pair threshold whatever the threshold
+    lone = [scene(0.7, True, n_pairs=1.0)] + [scene(0.6, False)] * 3
+    assert gated_threshold([lone], 0.0)[0] == pytest.approx(0.01)
+    thr, per = gated_threshold([[scene(0.9, True)]], 0.0)           # only emitting nothing holds
+    assert thr == pytest.approx(0.91) and per == [{"emitted": 0.0, "success": 0.0, "gross": 0.0}]
+
+
 def test_rmnet_evidence_is_higher_at_the_truth_than_at_a_slide(hard_dir):
     """RM-net scores pairs knowing nothing of the pose: at the true transform its assignment
     finds partners it calls alike; slid 15 m along or across, the same network finds fewer and
