@@ -53,9 +53,15 @@ def test_a_full_log_disk_at_start_and_mid_run_costs_the_log_only(tmp_path, small
         text = lambda: out.read_text()  # noqa: E731
         assert wait_for(lambda: len(re.findall(r"status: .*LOG FAILING", text())) >= 2, 40), text()[-3000:]
         assert proc.poll() is None and _mcaps(logs) == {}, text()[-2000:]
-        status = re.findall(r"status: (.*)", text())[-1]
-        # perception runs on (20 Hz; a starved test machine gives it less, never none)
-        assert float(re.search(r"shared ([\d.]+)/s", status).group(1)) > 5, status
+
+        def running_while_failing() -> str | None:
+            # perception runs on while the log fails (20 Hz; a starved test machine gives it less,
+            # and the first frame's cold start under load may fill a 1 s status interval or two)
+            lines = re.findall(r"status: (.*LOG FAILING.*)", text())
+            return next((x for x in lines if float(re.search(r"shared ([\d.]+)/s", x).group(1)) > 5), None)
+
+        assert wait_for(lambda: running_while_failing() is not None, 20), text()[-3000:]
+        status = running_while_failing()
         assert int(re.search(r"log_disk_error=(\d+)", status).group(1)) > 0   # counted in health
         assert text().count("ERROR mmatch.edge.recorder") == 1               # one error
         _free(small_disk)                                                    # space returns
