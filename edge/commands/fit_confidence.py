@@ -126,9 +126,11 @@ def _with_trees(model, reuse: list[dict] | None, args: argparse.Namespace):
 
     meta = {"folders": args.folders, "matcher": DEFAULT_MATCHER}
     try:
-        out = fit_tree_stage(reuse if reuse is not None else _runs(model, args, True), model, meta)
+        first = reuse if reuse is not None else _runs(model, args.folders, True, "fit trees", args.jobs)
+        out = fit_tree_stage(first, model, meta)
         if args.without_heading and model.without_heading is not None:
-            sub = fit_tree_stage(_runs(model, args, False), model.without_heading, dict(meta, heading_prior=False))
+            second = _runs(model, args.folders, False, "fit trees", args.jobs)
+            sub = fit_tree_stage(second, model.without_heading, dict(meta, heading_prior=False))
             out = replace(out, without_heading=sub)
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
@@ -139,12 +141,8 @@ def _with_threshold(model, families: list[list[str]], args: argparse.Namespace):
     """`model` with the threshold `gated_threshold` chooses on the tuning families, each run
     under `model` by the default matcher with every candidate emitted."""
     from mmatch.ego.confidence_fit import gated_threshold
-    from mmatch.ego.registry import DEFAULT_MATCHER
 
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "model.json"
-        path.write_text(model.to_json())
-        runs = [_evaluate(fam, [DEFAULT_MATCHER], str(path), True, "threshold", args.jobs) for fam in families]
+    runs = [_runs(model, fam, True, "threshold", args.jobs) for fam in families]
     thr, per = gated_threshold(runs, args.threshold_max_gross)
     for fam, res in zip(families, per):
         print(f"threshold {thr:.2f} on {','.join(fam)}: emitted {res['emitted']:.3f}, success {res['success']:.3f}, "
@@ -154,7 +152,7 @@ def _with_threshold(model, families: list[list[str]], args: argparse.Namespace):
     return replace(model, threshold=thr, meta=dict(model.meta, threshold_choice=choice))
 
 
-def _runs(model, args: argparse.Namespace, heading: bool) -> list[dict]:
+def _runs(model, folders: list[str], heading: bool, label: str, jobs: int) -> list[dict]:
     """The default matcher's per-scene results on the folders under `model`, every candidate
     emitted, with or without the heading prior."""
     from mmatch.ego.registry import DEFAULT_MATCHER
@@ -162,7 +160,7 @@ def _runs(model, args: argparse.Namespace, heading: bool) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.json"
         path.write_text(model.to_json())
-        return _evaluate(args.folders, [DEFAULT_MATCHER], str(path), heading, "fit trees", args.jobs)
+        return _evaluate(folders, [DEFAULT_MATCHER], str(path), heading, label, jobs)
 
 
 def _evaluate(folders: list[str], matchers: list[str], model_path: str | None, heading: bool,
