@@ -197,6 +197,11 @@ class Fuser:
             return FusionResult("no-estimate", aligned.reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings)
         T, a, cands, pairs = self._arbitrate(own, other, match, aligned)
+        if hasattr(self.aligner, "polish"):
+            # the chosen transform, once rated, refined with what only it implies (the vehicles'
+            # sightings of each other: ego/align/constrained.py); the tracker measures it too
+            T_chosen, T = T, self.aligner.polish(own, other, pairs, T, match.descriptor_scale)
+            cands = [(T if Tc is T_chosen else Tc, ac) for Tc, ac in cands]
         match = replace(match, pairs=pairs)
         timings["confidence"] = (time.perf_counter() - t2) * 1e3
         if self.tracker.enabled:

@@ -48,5 +48,7 @@ def get_matcher(name: str):
 
 
 def get_aligner(name: str):
-    """An aligner instance: callable (own, other, match) -> AlignResult."""
+    """An aligner instance: callable (own, other, match) -> AlignResult. It may also offer
+    `polish(own, other, pairs, T, descriptor_scale) -> T`, which the Fuser applies to the
+    transform it chose (`constrained`: with the vehicles' sightings of each other)."""
     return _load(ALIGNERS, "aligner", name)

@@ -46,12 +46,16 @@ def _fuser(name: str, matcher=None):
 def test_without_the_network_in_its_search_it_has_consensuss_transforms_and_better_pairs(wide_hard):
     """Through the CAV pipeline on wide physics, with the network's share in the search's
     likeness at 0: every scene's transform, status and confidence are consensus's; the pairs
-    under them are RM-net's, and more of them are right."""
+    under them are RM-net's, and more of them are right. (The sighting polish, which refines the
+    chosen transform with each matcher's own pairs, is off here: the search is compared.)"""
+    from mmatch.ego.align.constrained import ConstrainedAligner, ConstrainedConfig
     from mmatch.ego.match.consensus import ConsensusConfig
     from mmatch.ego.match.consensus_rmnet import ConsensusRMNetMatcher
     counts = {"consensus": np.zeros(3), "pairs only": np.zeros(3)}
     fusers = {"consensus": _fuser("consensus"),
               "pairs only": _fuser(DEFAULT_MATCHER, ConsensusRMNetMatcher(ConsensusConfig(pair_score_share=0.0)))}
+    for fuser in fusers.values():
+        fuser.aligner = ConstrainedAligner(ConstrainedConfig(sighting_polish=False))
     for f in wide_hard:
         scene = load_scene(f)
         prepared = prepare_scene(scene)

@@ -8,6 +8,15 @@ may act as vehicle terms, each weighted by its two views' line-of-sight covarian
 pair seen from two directions pins the vehicle where the rays cross; the background
 (trimmed nearest neighbours) and the heading prior hold the rest. The start whose result
 puts most of the other view's background on the own view's wins.
+
+`polish` refines the transform the Fuser finally chose once more with the two vehicles'
+sightings of each other: a vehicle of one view (not matched to the other view) found where
+the transform puts the other radar's vehicle, moving as that radar moves along the line of
+sight, is the other vehicle itself, a pair term like any matched vehicle (its centre
+body_offset_m behind its radar, sighting_sigma_m either way). With two co-visible vehicles
+strung along one street, the matched pairs and a straight roadside leave the slide along the
+street loose; a sighting pins it. It runs after the confidence model has rated the
+candidates, so the sighting evidence (ego/confidence.py) is not confirmed by a fit that used it.
 """
 
 from __future__ import annotations
@@ -16,9 +25,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mmatch.ego.base import AlignResult, MatchResult, background_tree, heading_yaws
+from mmatch.ego.base import AlignResult, MatchResult, background_tree, heading_yaws, point_counts, radial_ground_speeds
 from mmatch.ego.descriptor_scale import scaled_distance
-from mmatch.ego.observations import ObservationModel, mahalanobis, observe
+from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
 from mmatch.ego.rigid import distinct_best, kabsch2d, se2_to_matrix
 from mmatch.shared import SharedFrame
@@ -39,6 +48,13 @@ class ConstrainedConfig:
     distinct_deg: float = 2.0
     yaw_offsets_deg: tuple[float, ...] = (-4.0, 0.0, 4.0)
     hint_yaw_only: bool = True          # with a transform, single-pair starts under its heading yaw only
+    sighting_polish: bool = True        # `polish` uses the vehicles' sightings of each other (module doc)
+    sighting_sigma_m: float = 0.8       # a vehicle's centre from its radar's place, either way (length unknown)
+    sighting_gate: float = 3.0          # Mahalanobis distance within which a detection is the other vehicle
+    body_offset_m: float = 2.3          # radar (front bumper) to vehicle centre
+    sighting_speed_mps: float = 1.5     # a detection moving otherwise along the ray by more is someone else
+    sighting_speed_points: int = 3      # ... when it has at least this many returns (one or two: wheels)
+    polish_iterations: int = 8
 
 
 class ConstrainedAligner:
@@ -105,6 +121,76 @@ class ConstrainedAligner:
             inl = float(np.isfinite(d).mean())
         return AlignResult(se2_to_matrix(R, t, other.radar_height - own.radar_height), inlier_share=inl,
                            candidates=(Rs[keep], ts[keep]))
+
+
+    def polish(self, own: SharedFrame, other: SharedFrame, pairs: np.ndarray, T: np.ndarray,
+               descriptor_scale: float = 1.0) -> np.ndarray:
+        """T (4x4, CAV -> Ego) refined with the matched pairs `pairs` (P, 2), the background,
+        the heading prior and the two vehicles' sightings of each other (module doc); T itself
+        when neither vehicle is seen where T puts it."""
+        cfg = self.cfg
+        if not cfg.sighting_polish:
+            return T
+        A, B = observe(own, cfg.observation), observe(other, cfg.observation)
+        pairs = np.asarray(pairs, np.intp).reshape(-1, 2)
+        R, t = T[:2, :2], T[:2, 3]
+        seen = sightings(A, B, own, other, pairs, R, t, cfg)
+        if seen is None:
+            return T
+        D = np.zeros((len(A.centres) + 1, len(B.centres) + 1))
+        D[:-1, :-1] = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
+        R2, t2 = refine_many(*_with_bodies(A, B, cfg), D, own.background[:, :2], other.background[:, :2],
+                             R[None], t[None], heading_yaws(own, other),
+                             replace(cfg.refine, iterations=cfg.polish_iterations), background_tree(own), seen)
+        if not _finite(R2, t2)[0]:
+            return T
+        return se2_to_matrix(R2[0], t2[0], T[2, 3])
+
+
+def sightings(A: Observations, B: Observations, own: SharedFrame, other: SharedFrame, pairs: np.ndarray,
+              R: np.ndarray, t: np.ndarray, cfg: ConstrainedConfig = ConstrainedConfig()) -> np.ndarray | None:
+    """The pairs a refinement may use under R (2, 2), t (2,) (CAV -> Ego): (Va + 1, Vb + 1) with
+    the matched `pairs` (P, 2), the Ego's nearest unmatched vehicle to where the CAV's body lies
+    paired with the CAV itself (column Vb), and the CAV's nearest to the Ego's body with the Ego
+    itself (row Va), each only within sighting_gate (Mahalanobis, both positions' spreads) and
+    not moving otherwise than that radar along the line of sight; None when neither is seen."""
+    body = np.array([0.0, -cfg.body_offset_m])
+    allowed = np.zeros((len(A.centres) + 1, len(B.centres) + 1), bool)
+    allowed[pairs[:, 0], pairs[:, 1]] = True
+    views = ((A, own, R @ body + t, R @ np.asarray(other.ego_velocity, float).reshape(2), pairs[:, 0]),
+             (B, other, R.T @ (body - t), R.T @ np.asarray(own.ego_velocity, float).reshape(2), pairs[:, 1]))
+    found = False
+    for side, (obs, frame, where, velocity, matched) in enumerate(views):
+        if not len(obs.centres):
+            continue
+        d = obs.centres - where
+        S = obs.cov + cfg.sighting_sigma_m ** 2 * np.eye(2)
+        m2 = np.einsum("vi,vij,vj->v", d, np.linalg.inv(S), d)
+        g, u = radial_ground_speeds(frame)
+        known = np.isfinite(g) & (point_counts(frame) >= cfg.sighting_speed_points)
+        other_speed = known & (np.abs(np.nan_to_num(u) @ velocity - np.nan_to_num(g)) > cfg.sighting_speed_mps)
+        m2[other_speed] = np.inf
+        m2[matched] = np.inf
+        k = int(np.argmin(m2))
+        if m2[k] < cfg.sighting_gate ** 2:
+            found = True
+            if side == 0:
+                allowed[k, -1] = True
+            else:
+                allowed[-1, k] = True
+    return allowed if found else None
+
+
+def _with_bodies(A: Observations, B: Observations, cfg: ConstrainedConfig) -> tuple[Observations, Observations]:
+    """Both views' vehicles with the observing vehicle itself appended (its centre behind its radar)."""
+    body = np.array([[0.0, -cfg.body_offset_m]])
+    S = cfg.sighting_sigma_m ** 2 * np.eye(2)[None]
+
+    def plus(o: Observations) -> Observations:
+        return Observations(np.vstack([o.centres, body]), np.concatenate([o.cov, S]),
+                            np.vstack([o.cam_centres, body]), np.concatenate([o.cam_cov, S]),
+                            np.append(o.cam_penalty, 0.0))
+    return plus(A), plus(B)
 
 
 def _distinct(R: np.ndarray, t: np.ndarray, score: np.ndarray, cfg: ConstrainedConfig) -> np.ndarray:

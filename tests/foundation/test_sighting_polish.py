@@ -1,0 +1,97 @@
+"""The constrained aligner's `polish`: the vehicles' sightings of each other pin a slide along
+the street that two co-visible vehicles and a straight roadside leave loose."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from mmatch.ego.align.constrained import ConstrainedAligner, ConstrainedConfig
+from mmatch.fusion import Fuser
+from tests.report.synth import T_se2, frame
+
+T_TRUE = T_se2(0.0, 0.0, 20.0)        # the CAV drives 20 m ahead of the Ego in its lane
+PAIRS = np.array([[0, 0], [1, 1]], np.int32)
+SLIDE_M = 3.0                          # how far along the street the CAV places both shared cars
+
+
+def _frames(cav_doppler: float = 0.0, ego_sees_cav: bool = True):
+    """Ego and CAV frames of a street with two shared cars ahead and no background; the CAV's view of both is SLIDE_M further along the street than the
+    truth (as a wrong far-side shift would put them), so the pairs alone prefer a slid transform.
+    The Ego also detects the CAV itself (third vehicle, its body centre 2.3 m behind its radar),
+    with `cav_doppler` (m/s) on its returns: 0 moves as the Ego does, as the CAV does."""
+    rng = np.random.default_rng(4)
+    nothing = np.zeros((0, 2))             # no roadside return holds the slide along the street
+    shared = np.array([[3.0, 40.0], [-3.0, 55.0]])
+    cav_body = T_TRUE[:2, 3] + [0.0, -2.3]
+    ego_cars = np.vstack([shared, cav_body]) if ego_sees_cav else shared
+    own = frame("ego", nothing, ego_cars, np.eye(4), rng)
+    if ego_sees_cav:
+        pts = own.vehicle_points.copy()
+        pts[own.vehicle_index == 2, 3] = cav_doppler
+        own = dataclasses.replace(own, vehicle_points=pts)
+    other = frame("cav", nothing, shared + [0.0, SLIDE_M], np.linalg.inv(T_TRUE), rng)
+    return own, other
+
+
+def _slid_start():
+    """Where the pairs put the CAV: SLIDE_M short of the truth along the street."""
+    return T_se2(0.0, 0.0, 20.0 - SLIDE_M)
+
+
+def test_a_sighting_pulls_the_slide_along_the_street_back():
+    own, other = _frames()
+    T0 = _slid_start()
+    T = ConstrainedAligner().polish(own, other, PAIRS, T0)
+    before, after = abs(T0[1, 3] - T_TRUE[1, 3]), abs(T[1, 3] - T_TRUE[1, 3])
+    assert before == SLIDE_M
+    assert after < before - 0.5                      # one sighting against two pairs that agree
+    assert abs(T[0, 3]) < 0.3 and abs(np.arctan2(T[1, 0], T[0, 0])) < np.radians(1.0)
+
+
+def test_without_a_sighting_the_transform_is_left_alone():
+    own, other = _frames(ego_sees_cav=False)
+    T0 = _slid_start()
+    assert ConstrainedAligner().polish(own, other, PAIRS, T0) is T0
+
+
+def test_a_detection_moving_otherwise_than_the_cav_is_not_the_cav():
+    own, other = _frames(cav_doppler=-10.0)          # standing still while both radars drive at 10 m/s
+    T0 = _slid_start()
+    assert ConstrainedAligner().polish(own, other, PAIRS, T0) is T0
+
+
+def test_polish_can_be_switched_off():
+    own, other = _frames()
+    T0 = _slid_start()
+    aligner = ConstrainedAligner(ConstrainedConfig(sighting_polish=False))
+    assert aligner.polish(own, other, PAIRS, T0) is T0
+
+
+def test_a_matched_vehicle_is_never_taken_for_the_other_vehicle():
+    own, other = _frames()
+    T0 = _slid_start()
+    # the Ego's detection of the CAV matched to a CAV vehicle: it is a shared car, not a sighting
+    pairs = np.array([[0, 0], [2, 1]], np.int32)
+    assert ConstrainedAligner().polish(own, other, pairs, T0) is T0
+
+
+def test_the_fuser_publishes_the_polished_transform():
+    own, other = _frames()
+    fuser = Fuser()
+    calls = []
+    real = fuser.aligner.polish
+
+    def spy(*args, **kwargs):
+        out = real(*args, **kwargs)
+        calls.append((args[3], out))
+        return out
+
+    fuser.aligner.polish = spy
+    res = fuser.fuse(own, other)
+    assert len(calls) == 1
+    chosen, polished = calls[0]
+    T = res.T_ego_cav if res.T_ego_cav is not None else res.refused_T
+    assert T is polished
+    assert any(Tc is polished for Tc, _ in res.candidates)
