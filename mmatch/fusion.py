@@ -12,7 +12,7 @@ import numpy as np
 from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres,
                              velocity_heading_yaws, without_heading_prior)
 from mmatch.ego.confidence import (ConfidenceConfig, PairContext, assess_many, refusal, shared_view,
-                                   threshold, vehicle_distances)
+                                   threshold, vehicle_distances, with_information)
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import near_transforms, rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
@@ -199,9 +199,13 @@ class Fuser:
         T, a, cands, pairs = self._arbitrate(own, other, match, aligned)
         if hasattr(self.aligner, "polish"):
             # the chosen transform, once rated, refined with what only it implies (the vehicles'
-            # sightings of each other: ego/align/constrained.py); the tracker measures it too
-            T_chosen, T = T, self.aligner.polish(own, other, pairs, T, match.descriptor_scale)
-            cands = [(T if Tc is T_chosen else Tc, ac) for Tc, ac in cands]
+            # sightings of each other: ego/align/constrained.py), its covariance with what they
+            # add; the tracker measures it too
+            T_chosen, (T, info) = T, self.aligner.polish(own, other, pairs, T, match.descriptor_scale)
+            if info is not None:
+                heading = velocity_heading_yaws(own, other) is not None
+                a = replace(a, covariance=with_information(a.covariance, info, self.config.confidence, heading))
+            cands = [(T, a) if Tc is T_chosen else (Tc, ac) for Tc, ac in cands]
         match = replace(match, pairs=pairs)
         timings["confidence"] = (time.perf_counter() - t2) * 1e3
         if self.tracker.enabled:

@@ -857,6 +857,19 @@ def threshold(cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True, 
     return model.for_heading(heading).threshold if model is not None else 0.0
 
 
+def with_information(cov: np.ndarray, info: np.ndarray, cfg: ConfidenceConfig = ConfidenceConfig(),
+                     heading: bool = True) -> np.ndarray:
+    """A covariance (3, 3) of (x, y, yaw) as `assess_many` gives it, with `info` (3, 3, same
+    order) from terms its fit did not weigh added on the same inflation (heading: the frame
+    pair has a velocity heading prior, which picks the model)."""
+    model = load_model(cfg.model_path)
+    if model is not None:
+        model = model.for_heading(heading)
+    inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
+    out = np.linalg.inv(np.linalg.inv(cov) + info / inflation)
+    return (out + out.T) / 2
+
+
 def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
                 match: MatchResult | None = None, distances: np.ndarray | None = None) -> list[Assessment]:
     """Confidence, covariance, ambiguity and the reason against each hypothesis (see the module doc).

@@ -40,33 +40,42 @@ def _slid_start():
     return T_se2(0.0, 0.0, 20.0 - SLIDE_M)
 
 
+def _untouched(result, T0) -> bool:
+    T, info = result
+    return T is T0 and info is None
+
+
 def test_a_sighting_pulls_the_slide_along_the_street_back():
     own, other = _frames()
     T0 = _slid_start()
-    T = ConstrainedAligner().polish(own, other, PAIRS, T0)
+    T, info = ConstrainedAligner().polish(own, other, PAIRS, T0)
     before, after = abs(T0[1, 3] - T_TRUE[1, 3]), abs(T[1, 3] - T_TRUE[1, 3])
     assert before == SLIDE_M
     assert after < before - 0.5                      # one sighting against two pairs that agree
     assert abs(T[0, 3]) < 0.3 and abs(np.arctan2(T[1, 0], T[0, 0])) < np.radians(1.0)
+    # what the sighting tells, (x, y, yaw): the CAV's body seen 17.7 m ahead along y, across its
+    # line of sight (x) best, along it (y) at the detection's along-ray spread and the body's
+    assert np.allclose(info, info.T) and np.all(np.linalg.eigvalsh(info) >= -1e-12)
+    assert info[0, 0] > info[1, 1] > 0.2
 
 
 def test_without_a_sighting_the_transform_is_left_alone():
     own, other = _frames(ego_sees_cav=False)
     T0 = _slid_start()
-    assert ConstrainedAligner().polish(own, other, PAIRS, T0) is T0
+    assert _untouched(ConstrainedAligner().polish(own, other, PAIRS, T0), T0)
 
 
 def test_a_detection_moving_otherwise_than_the_cav_is_not_the_cav():
     own, other = _frames(cav_doppler=-10.0)          # standing still while both radars drive at 10 m/s
     T0 = _slid_start()
-    assert ConstrainedAligner().polish(own, other, PAIRS, T0) is T0
+    assert _untouched(ConstrainedAligner().polish(own, other, PAIRS, T0), T0)
 
 
 def test_polish_can_be_switched_off():
     own, other = _frames()
     T0 = _slid_start()
     aligner = ConstrainedAligner(ConstrainedConfig(sighting_polish=False))
-    assert aligner.polish(own, other, PAIRS, T0) is T0
+    assert _untouched(aligner.polish(own, other, PAIRS, T0), T0)
 
 
 def test_a_matched_vehicle_is_never_taken_for_the_other_vehicle():
@@ -74,7 +83,7 @@ def test_a_matched_vehicle_is_never_taken_for_the_other_vehicle():
     T0 = _slid_start()
     # the Ego's detection of the CAV matched to a CAV vehicle: it is a shared car, not a sighting
     pairs = np.array([[0, 0], [2, 1]], np.int32)
-    assert ConstrainedAligner().polish(own, other, pairs, T0) is T0
+    assert _untouched(ConstrainedAligner().polish(own, other, pairs, T0), T0)
 
 
 def test_the_fuser_publishes_the_polished_transform():
@@ -85,13 +94,19 @@ def test_the_fuser_publishes_the_polished_transform():
 
     def spy(*args, **kwargs):
         out = real(*args, **kwargs)
-        calls.append((args[3], out))
+        calls.append(out)
         return out
 
     fuser.aligner.polish = spy
     res = fuser.fuse(own, other)
     assert len(calls) == 1
-    chosen, polished = calls[0]
+    polished, info = calls[0]
+    assert info is not None
     T = res.T_ego_cav if res.T_ego_cav is not None else res.refused_T
     assert T is polished
-    assert any(Tc is polished for Tc, _ in res.candidates)
+    chosen = [ac for Tc, ac in res.candidates if Tc is polished]
+    assert len(chosen) == 1 and chosen[0].covariance is res.covariance
+    # the sighting's information narrows the published covariance: it is not the fit's alone
+    fuser.aligner.polish = lambda own, other, pairs, T, scale=1.0: (T, None)
+    plain = fuser.fuse(own, other)
+    assert np.linalg.det(res.covariance) < np.linalg.det(plain.covariance)

@@ -124,27 +124,32 @@ class ConstrainedAligner:
 
 
     def polish(self, own: SharedFrame, other: SharedFrame, pairs: np.ndarray, T: np.ndarray,
-               descriptor_scale: float = 1.0) -> np.ndarray:
+               descriptor_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray | None]:
         """T (4x4, CAV -> Ego) refined with the matched pairs `pairs` (P, 2), the background,
-        the heading prior and the two vehicles' sightings of each other (module doc); T itself
-        when neither vehicle is seen where T puts it."""
+        the heading prior and the two vehicles' sightings of each other (module doc), and the
+        information (3, 3) of (x, y, yaw) the sightings add; (T itself, None) when neither
+        vehicle is seen where T puts it."""
         cfg = self.cfg
         if not cfg.sighting_polish:
-            return T
+            return T, None
         A, B = observe(own, cfg.observation), observe(other, cfg.observation)
         pairs = np.asarray(pairs, np.intp).reshape(-1, 2)
         R, t = T[:2, :2], T[:2, 3]
         seen = sightings(A, B, own, other, pairs, R, t, cfg)
         if seen is None:
-            return T
+            return T, None
         D = np.zeros((len(A.centres) + 1, len(B.centres) + 1))
         D[:-1, :-1] = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
-        R2, t2 = refine_many(*_with_bodies(A, B, cfg), D, own.background[:, :2], other.background[:, :2],
-                             R[None], t[None], heading_yaws(own, other),
-                             replace(cfg.refine, iterations=cfg.polish_iterations), background_tree(own), seen)
+        A2, B2 = _with_bodies(A, B, cfg)
+        R2, t2 = refine_many(A2, B2, D, own.background[:, :2], other.background[:, :2], R[None], t[None],
+                             heading_yaws(own, other), replace(cfg.refine, iterations=cfg.polish_iterations),
+                             background_tree(own), seen)
         if not _finite(R2, t2)[0]:
-            return T
-        return se2_to_matrix(R2[0], t2[0], T[2, 3])
+            return T, None
+        seen[pairs[:, 0], pairs[:, 1]] = False           # the sightings alone
+        i, j = np.nonzero(seen)
+        return se2_to_matrix(R2[0], t2[0], T[2, 3]), pair_information(A2.centres[i], A2.cov[i], B2.centres[j],
+                                                                      B2.cov[j], R2[0])
 
 
 def sightings(A: Observations, B: Observations, own: SharedFrame, other: SharedFrame, pairs: np.ndarray,
@@ -179,6 +184,15 @@ def sightings(A: Observations, B: Observations, own: SharedFrame, other: SharedF
             else:
                 allowed[-1, k] = True
     return allowed if found else None
+
+
+def pair_information(a: np.ndarray, Sa: np.ndarray, b: np.ndarray, Sb: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(3, 3) information on (x, y, yaw) of the CAV -> Ego transform from pairs of one place seen
+    at a (P, 2) with covariance Sa (P, 2, 2) by the Ego and at b, Sb by the CAV, rotation R (2, 2)."""
+    W = np.linalg.inv(Sa + R @ Sb @ R.T)
+    Jy = np.column_stack([-b[:, 1], b[:, 0]]) @ R.T                         # d(R b)/dyaw, (P, 2)
+    J = np.concatenate([np.broadcast_to(np.eye(2), (len(b), 2, 2)), Jy[:, :, None]], axis=2)   # (P, 2, 3)
+    return np.einsum("pki,pkl,plj->ij", J, W, J)
 
 
 def _with_bodies(A: Observations, B: Observations, cfg: ConstrainedConfig) -> tuple[Observations, Observations]:
