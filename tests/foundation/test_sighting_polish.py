@@ -107,6 +107,21 @@ def test_the_fuser_publishes_the_polished_transform():
     chosen = [ac for Tc, ac in res.candidates if Tc is polished]
     assert len(chosen) == 1 and chosen[0].covariance is res.covariance
     # the sighting's information narrows the published covariance: it is not the fit's alone
-    fuser.aligner.polish = lambda own, other, pairs, T, scale=1.0: (T, None)
+    fuser.aligner.polish = lambda own, other, pairs, T, *rest: (T, None)
     plain = fuser.fuse(own, other)
     assert np.linalg.det(res.covariance) < np.linalg.det(plain.covariance)
+
+
+
+def test_equal_hypotheses_are_ranked_by_where_they_put_the_other_radar():
+    """The search's order of its hypotheses does not depend on the order they came in (which is
+    the order of the detections): equal ranks by the translation."""
+    from mmatch.ego.match.consensus import best_first
+    rng = np.random.default_rng(1)
+    rank = rng.integers(0, 4, 60).astype(float)           # many ties, as sighting hypotheses give
+    t = rng.normal(0, 20, (60, 2))
+    first = t[best_first(rank, t)]
+    for _ in range(5):
+        p = rng.permutation(60)
+        np.testing.assert_array_equal(t[p][best_first(rank[p], t[p])], first)
+    assert np.all(np.diff(rank[best_first(rank, t)]) <= 0)

@@ -156,7 +156,7 @@ class ConsensusMatcher:
             n_refine = cfg.refine_with_prior
         sighted = np.zeros(len(R), bool)
         sighted[n_regular:n_regular + n_sighting] = True
-        order = np.argsort(-rank)
+        order = best_first(rank, t)
         top = distinct_best(R, t, order[~sighted[order]], n_refine, cfg.distinct_m, cfg.distinct_deg)
         if n_sighting and cfg.sighting_refine:           # slots of their own: they never displace a pair's
             top = np.concatenate([top, distinct_best(R, t, order[sighted[order]], cfg.sighting_refine,
@@ -306,6 +306,13 @@ def _single_pair_hypotheses(A, B, cand, yaws):
     Bj = np.repeat(B[cand[:, 1]], len(yaws), 0)
     t = np.repeat(A[cand[:, 0]], len(yaws), 0) - (R @ Bj[:, :, None])[..., 0]
     return R, t
+
+
+def best_first(rank: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Hypothesis indices by rank (H,), highest first; equal ranks (sighting hypotheses often
+    tie) by where they put the other radar, t (H, 2), so that the order of the detections, which
+    orders the hypotheses, cannot choose among them."""
+    return np.lexsort((t[:, 1], t[:, 0], -rank))
 
 
 def _sighting_hypotheses(A, B, yaws, body_offset_m):
