@@ -201,7 +201,7 @@ class Fuser:
             # the chosen transform, once rated, refined with what only it implies (the vehicles'
             # sightings of each other: ego/align/constrained.py), its covariance with what they
             # add; the tracker measures it too
-            T_chosen, (T, info) = T, self.aligner.polish(own, other, pairs, T, match.descriptor_scale)
+            T_chosen, (T, info) = T, self.aligner.polish(own, other, pairs, T, match.descriptor_scale, quick)
             if info is not None:
                 heading = velocity_heading_yaws(own, other) is not None
                 a = replace(a, covariance=with_information(a.covariance, info, self.config.confidence, heading))

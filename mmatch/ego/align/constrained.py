@@ -55,6 +55,7 @@ class ConstrainedConfig:
     sighting_speed_mps: float = 1.5     # a detection moving otherwise along the ray by more is someone else
     sighting_speed_points: int = 3      # ... when it has at least this many returns (one or two: wheels)
     polish_iterations: int = 8
+    quick_polish_iterations: int = 3    # in a tracking frame (the matcher's quick_iterations)
 
 
 class ConstrainedAligner:
@@ -124,11 +125,12 @@ class ConstrainedAligner:
 
 
     def polish(self, own: SharedFrame, other: SharedFrame, pairs: np.ndarray, T: np.ndarray,
-               descriptor_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray | None]:
+               descriptor_scale: float = 1.0, quick: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """T (4x4, CAV -> Ego) refined with the matched pairs `pairs` (P, 2), the background,
         the heading prior and the two vehicles' sightings of each other (module doc), and the
         information (3, 3) of (x, y, yaw) the sightings add; (T itself, None) when neither
-        vehicle is seen where T puts it."""
+        vehicle is seen where T puts it. quick: a tracking frame's refined prediction (fewer
+        rounds: it starts near its answer)."""
         cfg = self.cfg
         if not cfg.sighting_polish:
             return T, None
@@ -141,8 +143,9 @@ class ConstrainedAligner:
         D = np.zeros((len(A.centres) + 1, len(B.centres) + 1))
         D[:-1, :-1] = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
         A2, B2 = _with_bodies(A, B, cfg)
+        rounds = cfg.quick_polish_iterations if quick else cfg.polish_iterations
         R2, t2 = refine_many(A2, B2, D, own.background[:, :2], other.background[:, :2], R[None], t[None],
-                             heading_yaws(own, other), replace(cfg.refine, iterations=cfg.polish_iterations),
+                             heading_yaws(own, other), replace(cfg.refine, iterations=rounds),
                              background_tree(own), seen)
         if not _finite(R2, t2)[0]:
             return T, None
