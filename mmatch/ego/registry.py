@@ -49,6 +49,7 @@ def get_matcher(name: str):
 
 def get_aligner(name: str):
     """An aligner instance: callable (own, other, match) -> AlignResult. It may also offer
-    `polish(own, other, pairs, T, descriptor_scale) -> T`, which the Fuser applies to the
-    transform it chose (`constrained`: with the vehicles' sightings of each other)."""
+    `polish(own, other, pairs, T, descriptor_scale, quick) -> (T, information or None)`, which the
+    Fuser applies to the transform it chose (`constrained`: with the vehicles' sightings of each
+    other; quick: a tracking frame)."""
     return _load(ALIGNERS, "aligner", name)

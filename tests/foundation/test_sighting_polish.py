@@ -17,8 +17,9 @@ SLIDE_M = 3.0                          # how far along the street the CAV places
 
 
 def _frames(cav_doppler: float = 0.0, ego_sees_cav: bool = True):
-    """Ego and CAV frames of a street with two shared cars ahead and no background; the CAV's view of both is SLIDE_M further along the street than the
-    truth (as a wrong far-side shift would put them), so the pairs alone prefer a slid transform.
+    """Ego and CAV frames of a street with two shared cars ahead and no background; the CAV's
+    view of both is SLIDE_M further along the street than the truth (as a wrong far-side shift
+    would put them), so the pairs alone prefer a slid transform.
     The Ego also detects the CAV itself (third vehicle, its body centre 2.3 m behind its radar),
     with `cav_doppler` (m/s) on its returns: 0 moves as the Ego does, as the CAV does."""
     rng = np.random.default_rng(4)

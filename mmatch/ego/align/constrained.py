@@ -25,7 +25,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mmatch.ego.base import AlignResult, MatchResult, background_tree, heading_yaws, point_counts, radial_ground_speeds
+from mmatch.ego.base import (AlignResult, MatchResult, background_tree, heading_yaws, point_counts,
+                             radial_ground_speeds)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
@@ -122,7 +123,6 @@ class ConstrainedAligner:
             inl = float(np.isfinite(d).mean())
         return AlignResult(se2_to_matrix(R, t, other.radar_height - own.radar_height), inlier_share=inl,
                            candidates=(Rs[keep], ts[keep]))
-
 
     def polish(self, own: SharedFrame, other: SharedFrame, pairs: np.ndarray, T: np.ndarray,
                descriptor_scale: float = 1.0, quick: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
