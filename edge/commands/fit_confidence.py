@@ -41,6 +41,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the gross rate among the emitted each --threshold-on family must keep")
     p.add_argument("--threshold-only", action="store_true",
                    help="keep the model file as it is and choose only its threshold (needs --threshold-on)")
+    p.add_argument("--inflation-only", action="store_true",
+                   help="keep the model file as it is and refit only its covariance inflation on the folders "
+                        "(the default matcher's published estimates, heading prior on; the model for frame "
+                        "pairs without one keeps its inflation)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,15 +69,19 @@ def run(args: argparse.Namespace) -> int:
         raise ParseError("--threshold-only needs at least one --threshold-on family")
     if not args.folders and not args.threshold_only:
         raise ParseError("give the folders to fit on (or --threshold-only)")
+    if sum((args.trees_only, args.threshold_only, args.inflation_only)) > 1:
+        raise ParseError("--trees-only, --threshold-only and --inflation-only: one at a time")
     if not 0.0 <= args.threshold_max_gross < 1.0:
         raise ParseError(f"--threshold-max-gross: {args.threshold_max_gross} is not in [0, 1)")
     out = Path(args.out) if args.out else MODEL_PATH
-    if args.trees_only or args.threshold_only:
-        what = "--trees-only" if args.trees_only else "--threshold-only"
+    if args.trees_only or args.threshold_only or args.inflation_only:
+        what = "--trees-only" if args.trees_only else "--threshold-only" if args.threshold_only else "--inflation-only"
         kept = load_model(str(out)) if args.out else load_model()
         if kept is None:
             raise ParseError(f"{what}: no model at {out} to keep")
         model = _with_trees(kept, None, args) if args.trees_only else kept
+        if args.inflation_only:
+            model = _with_inflation(model, args)
         if families:
             model = _with_threshold(model, families, args)
         out.write_text(model.to_json() + "\n")
@@ -150,6 +158,23 @@ def _with_threshold(model, families: list[list[str]], args: argparse.Namespace):
     choice = (f"{thr:.2f}: the lowest (a multiple of 0.01) at which gross among the emitted stays within "
               f"{args.threshold_max_gross} on each of " + "; ".join(",".join(f) for f in families))
     return replace(model, threshold=thr, meta=dict(model.meta, threshold_choice=choice))
+
+
+def _with_inflation(model, args: argparse.Namespace):
+    """`model` with its covariance inflation refit on the folders: the factor that makes the 95 %
+    ellipse of the published estimates (the default matcher's, run under `model`, whose
+    covariances carry its inflation) hold the truth for 95 % of the successful ones."""
+    from mmatch.ego.confidence_fit import fit_inflation
+
+    runs = _runs(model, args.folders, True, "inflation", args.jobs)
+    published = [dict(r["candidate"], covariance=r["covariance"]) for r in runs
+                 if r.get("candidate") and r.get("covariance") is not None]
+    factor = fit_inflation(published)
+    inflation = model.inflation * factor
+    print(f"covariance inflation {model.inflation:.3f} -> {inflation:.3f} (x {factor:.3f}) on "
+          f"{sum(p['success'] for p in published)} successful estimates of {len(runs)} scenes")
+    choice = f"{inflation:.3f}: refit alone (--inflation-only) on " + ",".join(args.folders)
+    return replace(model, inflation=inflation, meta=dict(model.meta, inflation_choice=choice))
 
 
 def _runs(model, folders: list[str], heading: bool, label: str, jobs: int) -> list[dict]:

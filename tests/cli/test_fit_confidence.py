@@ -149,3 +149,26 @@ def test_threshold_only_keeps_the_model_and_chooses_its_threshold_on_tuning_fami
     for bad in (["--threshold-only"], [], ["--threshold-only", "--threshold-on", str(folder), "--threshold-max-gross", "1.5"],
                 ["--threshold-only", "--threshold-on", str(tmp_path / "missing")]):
         assert main(["fit-confidence", *bad, "--out", str(out)]) == 2, bad
+
+
+def test_inflation_only_keeps_the_model_and_refits_its_covariance_inflation(folder, tmp_path, capsys):
+    """The factor that makes the 95 % ellipse of the published estimates hold the truth for 95 %
+    of the successful ones: refit under the refit inflation, it stays (1 within the quantile's
+    step), and nothing else of the model moves."""
+    out = tmp_path / "model.json"
+    out.write_text(confidence.MODEL_PATH.read_text())
+    kept = ProbabilityModel.from_json(out.read_text())
+    assert main(["fit-confidence", str(folder), "--inflation-only", "--out", str(out)]) == 0
+    model = ProbabilityModel.from_json(out.read_text())
+    np.testing.assert_array_equal(model.coef, kept.coef)
+    assert model.threshold == kept.threshold and model.for_heading(False).inflation == kept.for_heading(False).inflation
+    assert model.inflation > 0 and model.inflation != kept.inflation
+    assert model.meta["inflation_choice"].startswith(f"{model.inflation:.3f}: refit alone")
+    assert f"-> {model.inflation:.3f}" in capsys.readouterr().out
+    confidence.load_model.cache_clear()
+    assert main(["fit-confidence", str(folder), "--inflation-only", "--out", str(out)]) == 0
+    again = ProbabilityModel.from_json(out.read_text())
+    assert again.inflation == pytest.approx(model.inflation, rel=0.15)
+    for bad in (["--inflation-only"], [str(folder), "--inflation-only", "--threshold-only"],
+                [str(tmp_path / "missing"), "--inflation-only"]):
+        assert main(["fit-confidence", *bad, "--out", str(out)]) == 2, bad
