@@ -42,9 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threshold-only", action="store_true",
                    help="keep the model file as it is and choose only its threshold (needs --threshold-on)")
     p.add_argument("--inflation-only", action="store_true",
-                   help="keep the model file as it is and refit only its covariance inflation on the folders "
-                        "(the default matcher's published estimates, heading prior on; the model for frame "
-                        "pairs without one keeps its inflation)")
+                   help="keep the model file as it is and refit only its covariance inflations on the folders "
+                        "(the default matcher's published estimates; the second model's on the same folders "
+                        "run without the heading prior, unless --no-without-heading)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -161,20 +161,28 @@ def _with_threshold(model, families: list[list[str]], args: argparse.Namespace):
 
 
 def _with_inflation(model, args: argparse.Namespace):
-    """`model` with its covariance inflation refit on the folders: the factor that makes the 95 %
-    ellipse of the published estimates (the default matcher's, run under `model`, whose
-    covariances carry its inflation) hold the truth for 95 % of the successful ones."""
+    """`model` with its covariance inflations refit on the folders: each the factor that makes the
+    95 % ellipse of the published estimates (the default matcher's, run under `model`, whose
+    covariances carry its inflation) hold the truth for 95 % of the successful ones; the second
+    model's on the folders run without the heading prior (unless --no-without-heading)."""
     from mmatch.ego.confidence_fit import fit_inflation
 
-    runs = _runs(model, args.folders, True, "inflation", args.jobs)
-    published = [dict(r["candidate"], covariance=r["covariance"]) for r in runs
-                 if r.get("candidate") and r.get("covariance") is not None]
-    factor = fit_inflation(published)
-    inflation = model.inflation * factor
-    print(f"covariance inflation {model.inflation:.3f} -> {inflation:.3f} (x {factor:.3f}) on "
-          f"{sum(p['success'] for p in published)} successful estimates of {len(runs)} scenes")
-    choice = f"{inflation:.3f}: refit alone (--inflation-only) on " + ",".join(args.folders)
-    return replace(model, inflation=inflation, meta=dict(model.meta, inflation_choice=choice))
+    def refit(sub, heading: bool):
+        runs = _runs(model, args.folders, heading, "inflation", args.jobs)
+        published = [dict(r["candidate"], covariance=r["covariance"]) for r in runs
+                     if r.get("candidate") and r.get("covariance") is not None]
+        factor = fit_inflation(published)
+        inflation = sub.inflation * factor
+        print(f"covariance inflation{'' if heading else ' without a heading prior'} {sub.inflation:.3f} -> "
+              f"{inflation:.3f} (x {factor:.3f}) on {sum(p['success'] for p in published)} successful "
+              f"estimates of {len(runs)} scenes")
+        choice = f"{inflation:.3f}: refit alone (--inflation-only) on " + ",".join(args.folders)
+        return replace(sub, inflation=inflation, meta=dict(sub.meta, inflation_choice=choice))
+
+    out = refit(model, True)
+    if args.without_heading and model.without_heading is not None:
+        out = replace(out, without_heading=refit(model.without_heading, False))
+    return out
 
 
 def _runs(model, folders: list[str], heading: bool, label: str, jobs: int) -> list[dict]:

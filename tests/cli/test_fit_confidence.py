@@ -161,14 +161,19 @@ def test_inflation_only_keeps_the_model_and_refits_its_covariance_inflation(fold
     assert main(["fit-confidence", str(folder), "--inflation-only", "--out", str(out)]) == 0
     model = ProbabilityModel.from_json(out.read_text())
     np.testing.assert_array_equal(model.coef, kept.coef)
-    assert model.threshold == kept.threshold and model.for_heading(False).inflation == kept.for_heading(False).inflation
-    assert model.inflation > 0 and model.inflation != kept.inflation
-    assert model.meta["inflation_choice"].startswith(f"{model.inflation:.3f}: refit alone")
-    assert f"-> {model.inflation:.3f}" in capsys.readouterr().out
+    assert model.threshold == kept.threshold and model.without_heading.threshold == kept.without_heading.threshold
+    for mine, before in ((model, kept), (model.without_heading, kept.without_heading)):
+        assert mine.inflation > 0 and mine.inflation != before.inflation
+        assert mine.meta["inflation_choice"].startswith(f"{mine.inflation:.3f}: refit alone")
+    printed = capsys.readouterr().out
+    assert f"-> {model.inflation:.3f}" in printed and f"prior {kept.without_heading.inflation:.3f} -> " in printed
     confidence.load_model.cache_clear()
     assert main(["fit-confidence", str(folder), "--inflation-only", "--out", str(out)]) == 0
     again = ProbabilityModel.from_json(out.read_text())
     assert again.inflation == pytest.approx(model.inflation, rel=0.15)
+    confidence.load_model.cache_clear()
+    assert main(["fit-confidence", str(folder), "--inflation-only", "--no-without-heading", "--out", str(out)]) == 0
+    assert ProbabilityModel.from_json(out.read_text()).without_heading.inflation == again.without_heading.inflation
     for bad in (["--inflation-only"], [str(folder), "--inflation-only", "--threshold-only"],
                 [str(tmp_path / "missing"), "--inflation-only"]):
         assert main(["fit-confidence", *bad, "--out", str(out)]) == 2, bad
