@@ -197,13 +197,13 @@ class Fuser:
             return FusionResult("no-estimate", aligned.reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings)
         T, a, cands, pairs = self._arbitrate(own, other, match, aligned)
+        heading = velocity_heading_yaws(own, other) is not None
         if hasattr(self.aligner, "polish"):
             # the chosen transform, once rated, refined with what only it implies (the vehicles'
             # sightings of each other: ego/align/constrained.py), its covariance with what they
             # add; the tracker measures it too
             T_chosen, (T, info) = T, self.aligner.polish(own, other, pairs, T, match.descriptor_scale, quick)
             if info is not None:
-                heading = velocity_heading_yaws(own, other) is not None
                 a = replace(a, covariance=with_information(a.covariance, info, self.config.confidence, heading))
             cands = [(T, a) if Tc is T_chosen else (Tc, ac) for Tc, ac in cands]
         match = replace(match, pairs=pairs)
@@ -213,7 +213,7 @@ class Fuser:
         sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
                     candidates=cands)
         ccfg = self.config.confidence
-        thr = self._threshold if velocity_heading_yaws(own, other) is not None else self._threshold_no_heading
+        thr = self._threshold if heading else self._threshold_no_heading
         why = refusal(a.confidence, a.features, thr, ccfg)
         if why is not None:
             # not sure enough, the matcher's own evidence prefers a distinct alternative (two

@@ -306,6 +306,16 @@ def yaw_gap(yaw: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     return np.abs((d + np.pi) % (2 * np.pi) - np.pi).min(axis=-1)
 
 
+def moving_otherwise(g: np.ndarray, u: np.ndarray, n: np.ndarray, v: np.ndarray, speed_mps: float,
+                     min_points: int) -> np.ndarray:
+    """(H, V) whether each vehicle (radial ground speed g (V,) m/s along its line of sight u (V, 2),
+    `radial_ground_speeds`; n (V,) returns) moves otherwise than velocity v (H, 2) m/s along that
+    line by more than speed_mps: an unknown speed (NaN) never does, nor a vehicle of fewer than
+    min_points returns (one or two may be wheels, or a false one)."""
+    u = np.nan_to_num(u)
+    return (np.abs(u[:, 0] * v[:, 0, None] + u[:, 1] * v[:, 1, None] - g) > speed_mps) & (n >= min_points)
+
+
 def radial_ground_speeds(frame: SharedFrame) -> tuple[np.ndarray, np.ndarray]:
     """Per vehicle: the ground velocity along the line of sight (V,) m/s and that unit line of sight (V, 2).
 

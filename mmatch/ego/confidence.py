@@ -48,8 +48,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import (Hypotheses, MatchResult, background_tree, heading_yaws, point_counts,
-                             radial_ground_speeds, velocity_heading_yaws)
+from mmatch.ego.base import (Hypotheses, MatchResult, background_tree, heading_yaws, moving_otherwise,
+                             point_counts, radial_ground_speeds, velocity_heading_yaws)
 from mmatch.ego.confidence_trees import TreeEnsemble, choice_features
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.rigid import inv2, rot2
@@ -429,13 +429,13 @@ def _pair_information(ctx: PairContext, R: np.ndarray, pairs: list[np.ndarray], 
         Rh = Rg[:, None]
         S = A.cov[i] + Rh @ B.cov[j] @ Rh.transpose(0, 1, 3, 2)                   # (G, P, 2, 2)
         Jy = np.stack([-b[..., 1], b[..., 0]], axis=-1) @ Rg.transpose(0, 2, 1)   # (G, P, 2)
-        info[rows] = _information_sum(Jy, inv2(S))
+        info[rows] = information_sum(Jy, inv2(S))
         pair_chi2[rows] = np.mean(dm ** 2, axis=1)
         chi2[rows] = np.sum(np.minimum(dm ** 2, 25.0), axis=1)
     return info, chi2, pair_chi2
 
 
-def _information_sum(Jy: np.ndarray, P: np.ndarray) -> np.ndarray:
+def information_sum(Jy: np.ndarray, P: np.ndarray) -> np.ndarray:
     """(H, 3, 3) sum over n of J^T P J for J = [I | Jy] (2 x 3 per term: x, y, yaw), P (H, N, 2, 2)
     symmetric and Jy (H, N, 2) the derivative of a moved point by the yaw."""
     PJ = (P @ Jy[..., None])[..., 0]                                         # (H, N, 2)
@@ -480,7 +480,7 @@ def _background_information(ctx: PairContext, R: np.ndarray, moved: np.ndarray |
         n_ok = ok.sum(axis=1)
         w = np.where(n_ok >= 3, cells / np.maximum(n_ok, 1), 0.0) / cfg.bg_sigma_m ** 2
         Jy = np.column_stack([-src[:, 1], src[:, 0]]) @ R.transpose(0, 2, 1)
-        info += w[:, None, None] * _information_sum(Jy, P)
+        info += w[:, None, None] * information_sum(Jy, P)
         r = ctx.bg_own[kk] - moved
         chi2 += w * (r[..., 0] ** 2 * P[..., 0, 0] + 2 * r[..., 0] * r[..., 1] * P[..., 0, 1]
                      + r[..., 1] ** 2 * P[..., 1, 1]).sum(axis=1)
@@ -578,11 +578,7 @@ def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarra
             continue
         dx, dy = where[:, 0, None] - cents[:, 0], where[:, 1, None] - cents[:, 1]
         near = np.sqrt(dx * dx + dy * dy) < cfg.sighting_m                                    # (H, V)
-        u = np.nan_to_num(u)
-        # moving otherwise than the other radar along the line of sight (an unknown speed, NaN,
-        # never is, nor a vehicle of one or two returns: wheels or a false one)
-        off = (np.abs(u[:, 0] * v[:, 0, None] + u[:, 1] * v[:, 1, None] - g) > cfg.sighting_speed_mps) \
-            & (n >= cfg.sighting_speed_points)
+        off = moving_otherwise(g, u, n, v, cfg.sighting_speed_mps, cfg.sighting_speed_points)
         seen = near.any(axis=1)
         wrong = seen & ~(near & ~off).any(axis=1)
         out += np.where(view, np.where(seen, 1.0, np.where(_occluded(r, az, *_polar(cents), cfg), 0.0, -1.0)), 0.0)
@@ -862,12 +858,19 @@ def with_information(cov: np.ndarray, info: np.ndarray, cfg: ConfidenceConfig = 
     """A covariance (3, 3) of (x, y, yaw) as `assess_many` gives it, with `info` (3, 3, same
     order) from terms its fit did not weigh added on the same inflation (heading: the frame
     pair has a velocity heading prior, which picks the model)."""
-    model = load_model(cfg.model_path)
-    if model is not None:
-        model = model.for_heading(heading)
-    inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
-    out = np.linalg.inv(np.linalg.inv(cov) + info / inflation)
+    out = np.linalg.inv(np.linalg.inv(cov) + info / _inflation(cfg, _model(cfg, heading)))
     return (out + out.T) / 2
+
+
+def _model(cfg: ConfidenceConfig, heading: bool) -> ProbabilityModel | None:
+    """The fitted model for frame pairs with (heading) or without a heading prior, None without one."""
+    model = load_model(cfg.model_path)
+    return model.for_heading(heading) if model is not None else None
+
+
+def _inflation(cfg: ConfidenceConfig, model: ProbabilityModel | None) -> float:
+    """The factor on the fit's covariances: the configured one, else the model's (1 without)."""
+    return cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
 
 
 def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
@@ -878,11 +881,8 @@ def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarra
     `vehicle_distances(ctx, R, t)` when at hand.
     """
     cfg = ctx.cfg
-    model = load_model(cfg.model_path)
-    if model is not None:
-        model = model.for_heading(ctx.velocity_prior)
-    inflation = cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
-    X, cov, amb, assigned = _features(ctx, R, t, pairs, match, inflation, distances)
+    model = _model(cfg, ctx.velocity_prior)
+    X, cov, amb, assigned = _features(ctx, R, t, pairs, match, _inflation(cfg, model), distances)
     p, choice = model.rate(X) if model is not None else (np.full(len(X), np.nan),) * 2
     reasons = [REASONS[FEATURES[k]] for k in np.argmin(model.logit_terms(X), axis=1)] if model is not None \
         else [""] * len(X)

@@ -25,12 +25,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mmatch.ego.base import (AlignResult, MatchResult, background_tree, heading_yaws, point_counts,
-                             radial_ground_speeds)
+from mmatch.ego.base import (AlignResult, MatchResult, background_tree, heading_yaws, moving_otherwise,
+                             point_counts, radial_ground_speeds)
+from mmatch.ego.confidence import information_sum
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.refine import RefineConfig, refine_many
-from mmatch.ego.rigid import distinct_best, kabsch2d, se2_to_matrix
+from mmatch.ego.rigid import distinct_best, inv2, kabsch2d, se2_to_matrix
 from mmatch.shared import SharedFrame
 
 
@@ -175,9 +176,8 @@ def sightings(A: Observations, B: Observations, own: SharedFrame, other: SharedF
         S = obs.cov + cfg.sighting_sigma_m ** 2 * np.eye(2)
         m2 = np.einsum("vi,vij,vj->v", d, np.linalg.inv(S), d)
         g, u = radial_ground_speeds(frame)
-        known = np.isfinite(g) & (point_counts(frame) >= cfg.sighting_speed_points)
-        other_speed = known & (np.abs(np.nan_to_num(u) @ velocity - np.nan_to_num(g)) > cfg.sighting_speed_mps)
-        m2[other_speed] = np.inf
+        m2[moving_otherwise(g, u, point_counts(frame), velocity[None], cfg.sighting_speed_mps,
+                            cfg.sighting_speed_points)[0]] = np.inf
         m2[matched] = np.inf
         k = int(np.argmin(m2))
         if m2[k] < cfg.sighting_gate ** 2:
@@ -192,10 +192,8 @@ def sightings(A: Observations, B: Observations, own: SharedFrame, other: SharedF
 def pair_information(a: np.ndarray, Sa: np.ndarray, b: np.ndarray, Sb: np.ndarray, R: np.ndarray) -> np.ndarray:
     """(3, 3) information on (x, y, yaw) of the CAV -> Ego transform from pairs of one place seen
     at a (P, 2) with covariance Sa (P, 2, 2) by the Ego and at b, Sb by the CAV, rotation R (2, 2)."""
-    W = np.linalg.inv(Sa + R @ Sb @ R.T)
     Jy = np.column_stack([-b[:, 1], b[:, 0]]) @ R.T                         # d(R b)/dyaw, (P, 2)
-    J = np.concatenate([np.broadcast_to(np.eye(2), (len(b), 2, 2)), Jy[:, :, None]], axis=2)   # (P, 2, 3)
-    return np.einsum("pki,pkl,plj->ij", J, W, J)
+    return information_sum(Jy[None], inv2(Sa + R @ Sb @ R.T)[None])[0]
 
 
 def _with_bodies(A: Observations, B: Observations, cfg: ConstrainedConfig) -> tuple[Observations, Observations]:
