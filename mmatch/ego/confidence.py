@@ -48,8 +48,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import (Hypotheses, MatchResult, background_tree, heading_yaws, moving_otherwise,
-                             point_counts, radial_ground_speeds, velocity_heading_yaws)
+from mmatch.ego.base import (Hypotheses, MatchResult, SightingModel, background_tree, heading_yaws,
+                             moving_otherwise, point_counts, radial_ground_speeds, sighting_offsets,
+                             velocity_heading_yaws)
 from mmatch.ego.confidence_trees import TreeEnsemble, choice_features
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.rigid import inv2, rot2
@@ -103,11 +104,10 @@ class ConfidenceConfig:
     distinct_deg: alternatives farther than this count as distinct; bg_sigma_m / bg_gate_m /
     bg_cell_m: background correspondence noise, gate and the cell size within which
     background terms count as one; heading_sigma_deg: the heading prior on the yaw;
-    sighting_m / camera_half_fov_deg / camera_range_m / body_offset_m: where one vehicle
-    expects to see the other (radar at the front bumper, body centre behind it);
-    sighting_speed_mps: how far the radial ground speed of what is seen there may differ
-    from the other radar's own (Doppler and ego-motion errors), judged on vehicles of at
-    least sighting_speed_points returns (one or two may be wheels); occlusion_half_width_m:
+    sighting_m / camera_half_fov_deg / camera_range_m: where one vehicle expects to see the
+    other (within sighting_m of where a detection puts the other's radar, `sighting`: the
+    radar at the front bumper, the body behind it, and how far the radial ground speed of
+    what is seen there may differ from the other radar's own); occlusion_half_width_m:
     a nearer vehicle this close to the line of sight hides what is behind it;
     covisible_margin_deg / covisible_margin_m: how far inside the other's camera view (from
     its edge, short of its range) a vehicle must lie for the other to be expected to detect
@@ -130,15 +130,13 @@ class ConfidenceConfig:
     heading_sigma_deg: float = 3.0
     heading_gate_deg: float = 10.0
     sighting_m: float = 3.5
-    sighting_speed_mps: float = 1.5
-    sighting_speed_points: int = 3
     occlusion_half_width_m: float = 1.2
     covisible_margin_deg: float = 5.0
     covisible_margin_m: float = 15.0
     covisible_gate: float = 2.0
     camera_half_fov_deg: float = 30.0
     camera_range_m: float = 60.0
-    body_offset_m: float = 2.3
+    sighting: SightingModel = SightingModel()
     max_speed_mps: float = 40.0
     min_speed_mps: float = 2.0
     slides_m: tuple[float, ...] = (-24.0, -9.0, 9.0, 24.0)
@@ -559,26 +557,33 @@ def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarra
 
     A conflict: every detected vehicle within sighting_m of where the hypothesis puts the other
     radar's body has a radial ground speed that differs from the other radar's own velocity
-    along that line of sight by more than sighting_speed_mps (at least one known, from
-    sighting_speed_points returns or more). In a platoon, a slide by one vehicle gap puts the
+    along that line of sight by more than `SightingModel.speed_mps` (at least one known, from
+    its speed_points returns or more); where a detection puts the radar of the vehicle it is:
+    `SightingModel.offsets`. In a platoon, a slide by one vehicle gap puts the
     other radar onto the vehicle ahead of it: something is seen there, but at its own speed."""
     cfg = ctx.cfg
-    body = np.array([0.0, -cfg.body_offset_m])
+    model = cfg.sighting
+    body = np.array([0.0, -model.body_offset_m])
     cav_in_ego = np.einsum("hab,b->ha", R, body) + t
     ego_in_cav = np.einsum("hba,hb->ha", R, body[None] - t)
     v_cav = np.einsum("hab,b->ha", R, np.asarray(ctx.other.ego_velocity, float).reshape(2))      # Ego frame
     v_ego = np.einsum("hba,b->ha", R, np.asarray(ctx.own.ego_velocity, float).reshape(2))        # CAV frame
+    # each view's radar and heading in the other's frame, and where its detections put them
+    radar_cav, radar_ego = t, -np.einsum("hba,hb->ha", R, t)
+    heading_cav, heading_ego = R[:, :, 1], R[:, 1, :]
+    off_own, off_other = sighting_offsets(ctx.own, ctx.other, model)
     out, conflict = np.zeros(len(R)), np.zeros(len(R))
-    for where, cents, g, u, v, n in ((cav_in_ego, ctx.A.centres, ctx.ge, ctx.ue, v_cav, ctx.ne),
-                                     (ego_in_cav, ctx.B.centres, ctx.gc, ctx.uc, v_ego, ctx.nc)):
+    for where, radar, heading, cents, offs, g, u, v, n in (
+            (cav_in_ego, radar_cav, heading_cav, ctx.A.centres, off_own, ctx.ge, ctx.ue, v_cav, ctx.ne),
+            (ego_in_cav, radar_ego, heading_ego, ctx.B.centres, off_other, ctx.gc, ctx.uc, v_ego, ctx.nc)):
         r, az = _polar(where)
         view = _in_view(r, az, cfg)
         if not len(cents):
             out -= view
             continue
-        dx, dy = where[:, 0, None] - cents[:, 0], where[:, 1, None] - cents[:, 1]
-        near = np.sqrt(dx * dx + dy * dy) < cfg.sighting_m                                    # (H, V)
-        off = moving_otherwise(g, u, n, v, cfg.sighting_speed_mps, cfg.sighting_speed_points)
+        gap = cents[None] + offs[None, :, None] * heading[:, None] - radar[:, None]          # (H, V, 2)
+        near = np.sqrt(gap[..., 0] ** 2 + gap[..., 1] ** 2) < cfg.sighting_m                   # (H, V)
+        off = moving_otherwise(g, u, n, v, model.speed_mps, model.speed_points)
         seen = near.any(axis=1)
         wrong = seen & ~(near & ~off).any(axis=1)
         out += np.where(view, np.where(seen, 1.0, np.where(_occluded(r, az, *_polar(cents), cfg), 0.0, -1.0)), 0.0)

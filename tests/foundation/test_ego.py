@@ -184,8 +184,8 @@ def test_consensus_scores_a_bounded_number_of_hypotheses_in_dense_traffic(monkey
 
     scored = []
     real = cs._vehicle_scores
-    monkeypatch.setattr(cs, "_vehicle_scores", lambda A, B, alike, R, t, cfg: (scored.append(len(R)),
-                                                                             real(A, B, alike, R, t, cfg))[1])
+    monkeypatch.setattr(cs, "_vehicle_scores", lambda A, B, alike, R, t, cfg, offsets=None: (
+        scored.append(len(R)), real(A, B, alike, R, t, cfg, offsets))[1])
     cfg = cs.ConsensusConfig()
     for per_view, capped in ((38, True), (12, False)):
         own, other, gt, T = dense_pair(4101, per_view)
@@ -241,17 +241,20 @@ def test_a_car_following_the_other_is_proposed_from_seeing_it(sighting):
 
 
 def test_sighting_hypotheses_put_each_vehicle_on_each_detection():
+    """Each detection taken as the other vehicle, its radar as far ahead of it as the detection's
+    offset says (a bus's farther than a car's)."""
     from mmatch.ego.match.consensus import _sighting_hypotheses
 
     A, B = np.array([[3.0, 30.0], [-2.0, 12.0]]), np.array([[1.0, 18.0]])
+    off_a, off_b = np.array([2.3, 4.8]), np.array([4.8])
     yaws = np.radians([10.0, 100.0, 190.0, 280.0])
-    R, t = _sighting_hypotheses(A, B, yaws, 2.3)
+    R, t = _sighting_hypotheses(A, B, yaws, off_a, off_b)
     assert R.shape == (12, 2, 2) and t.shape == (12, 2)
-    body = np.array([0.0, -2.3])
-    cav_body = np.einsum("hij,j->hi", R, body) + t                   # other's body in the own frame
-    ego_body_in_cav = np.einsum("hji,hj->hi", R, body - t)           # own body in the other's frame
-    np.testing.assert_allclose(cav_body[:8], np.repeat(A, 4, axis=0), atol=1e-12)
-    np.testing.assert_allclose(ego_body_in_cav[8:], np.repeat(B, 4, axis=0), atol=1e-12)
+    body_a = np.column_stack([np.zeros(8), -np.repeat(off_a, 4)])   # the other's body as each A puts it
+    cav_body = np.einsum("hij,hj->hi", R[:8], body_a) + t[:8]        # other's body in the own frame
+    ego_body_in_cav = np.einsum("hji,hj->hi", R[8:], np.array([0.0, -4.8]) - t[8:])   # own body, other frame
+    np.testing.assert_allclose(cav_body, np.repeat(A, 4, axis=0), atol=1e-12)
+    np.testing.assert_allclose(ego_body_in_cav, np.repeat(B, 4, axis=0), atol=1e-12)
     np.testing.assert_allclose(np.arctan2(R[:4, 1, 0], R[:4, 0, 0]), np.angle(np.exp(1j * yaws)), atol=1e-12)
 
 

@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 
 from mmatch.ego.align.constrained import ConstrainedAligner, ConstrainedConfig
+from mmatch.ego.base import far_side_centres
 from mmatch.fusion import Fuser
 from tests.report.synth import T_se2, frame
 
@@ -16,12 +17,14 @@ PAIRS = np.array([[0, 0], [1, 1]], np.int32)
 SLIDE_M = 3.0                          # how far along the street the CAV places both shared cars
 
 
-def _frames(cav_doppler: float = 0.0, ego_sees_cav: bool = True):
+def _frames(cav_doppler: float = 0.0, ego_sees_cav: bool = True, bus: bool = False):
     """Ego and CAV frames of a street with two shared cars ahead and no background; the CAV's
     view of both is SLIDE_M further along the street than the truth (as a wrong far-side shift
     would put them), so the pairs alone prefer a slid transform.
     The Ego also detects the CAV itself (third vehicle, its body centre 2.3 m behind its radar),
-    with `cav_doppler` (m/s) on its returns: 0 moves as the Ego does, as the CAV does."""
+    with `cav_doppler` (m/s) on its returns: 0 moves as the Ego does, as the CAV does. bus: the
+    CAV is a bus in a box 3.4 m tall, the centre the Ego estimates for it (`far_side_centres`)
+    4.8 m behind its radar."""
     rng = np.random.default_rng(4)
     nothing = np.zeros((0, 2))             # no roadside return holds the slide along the street
     shared = np.array([[3.0, 40.0], [-3.0, 55.0]])
@@ -32,6 +35,13 @@ def _frames(cav_doppler: float = 0.0, ego_sees_cav: bool = True):
         pts = own.vehicle_points.copy()
         pts[own.vehicle_index == 2, 3] = cav_doppler
         own = dataclasses.replace(own, vehicle_points=pts)
+        if bus:                                         # 170 canonical px at 20 m: 3.4 m tall
+            boxes = own.vehicle_boxes.copy()
+            boxes[2, 3] = boxes[2, 1] + 170.0
+            own = dataclasses.replace(own, vehicle_boxes=boxes)
+            move = T_TRUE[:2, 3] + [0.0, -4.8] - far_side_centres(own)[2]
+            pts[own.vehicle_index == 2, :2] += move.astype(np.float32)
+            own = dataclasses.replace(own, vehicle_points=pts)
     other = frame("cav", nothing, shared + [0.0, SLIDE_M], np.linalg.inv(T_TRUE), rng)
     return own, other
 
@@ -126,3 +136,24 @@ def test_equal_hypotheses_are_ranked_by_where_they_put_the_other_radar():
         p = rng.permutation(60)
         np.testing.assert_array_equal(t[p][best_first(rank[p], t[p])], first)
     assert np.all(np.diff(rank[best_first(rank, t)]) <= 0)
+
+
+def test_a_tall_detection_puts_its_radar_farther_ahead():
+    """A bus's or lorry's radar sits farther ahead of the centre a view estimates for it than a
+    car's (SightingModel): the Ego that follows a bus places the CAV where it is, not 2.5 m short."""
+    from mmatch.ego.base import SightingModel
+
+    own, other = _frames(bus=True)
+    model = SightingModel()
+    assert model.long(own).tolist() == [False, False, True]
+    assert model.offsets(own).tolist() == [model.body_offset_m, model.body_offset_m, model.long_offset_m]
+    assert model.sigmas(own)[2] > model.sigmas(own)[0]
+    assert abs(far_side_centres(own)[2][1] - (T_TRUE[1, 3] - 4.8)) < 0.05
+    T0 = _slid_start()
+    T, info = ConstrainedAligner().polish(own, other, PAIRS, T0)
+    assert info is not None and abs(T[1, 3] - T_TRUE[1, 3]) < SLIDE_M - 0.5
+    # read as a car, the same detection puts the CAV's radar 2.5 m short of the truth: the
+    # sighting would hold the slide instead of pulling it back
+    as_car = ConstrainedConfig(sighting=dataclasses.replace(model, long_height_m=10.0))
+    T_car, _ = ConstrainedAligner(as_car).polish(own, other, PAIRS, T0)
+    assert abs(T_car[1, 3] - T_TRUE[1, 3]) > abs(T[1, 3] - T_TRUE[1, 3]) + 0.5

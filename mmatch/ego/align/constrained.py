@@ -12,8 +12,8 @@ puts most of the other view's background on the own view's wins.
 `polish` refines the transform the Fuser finally chose once more with the two vehicles'
 sightings of each other: a vehicle of one view (not matched to the other view) found where
 the transform puts the other radar's vehicle, moving as that radar moves along the line of
-sight, is the other vehicle itself, a pair term like any matched vehicle (its centre
-body_offset_m behind its radar, sighting_sigma_m either way). With two co-visible vehicles
+sight, is the other vehicle itself, a pair term like any matched vehicle (its radar where
+`SightingModel.offsets` puts it ahead of the detection, that model's sigmas either way). With two co-visible vehicles
 strung along one street, the matched pairs and a straight roadside leave the slide along the
 street loose; a sighting pins it. It runs after the confidence model has rated the
 candidates, so the sighting evidence (ego/confidence.py) is not confirmed by a fit that used it.
@@ -25,8 +25,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mmatch.ego.base import (AlignResult, MatchResult, background_tree, heading_yaws, moving_otherwise,
-                             point_counts, radial_ground_speeds)
+from mmatch.ego.base import (AlignResult, MatchResult, SightingModel, background_tree, heading_yaws,
+                             moving_otherwise, point_counts, radial_ground_speeds)
 from mmatch.ego.confidence import information_sum
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
@@ -51,11 +51,8 @@ class ConstrainedConfig:
     yaw_offsets_deg: tuple[float, ...] = (-4.0, 0.0, 4.0)
     hint_yaw_only: bool = True          # with a transform, single-pair starts under its heading yaw only
     sighting_polish: bool = True        # `polish` uses the vehicles' sightings of each other (module doc)
-    sighting_sigma_m: float = 0.8       # a vehicle's centre from its radar's place, either way (length unknown)
     sighting_gate: float = 3.0          # Mahalanobis distance within which a detection is the other vehicle
-    body_offset_m: float = 2.3          # radar (front bumper) to vehicle centre
-    sighting_speed_mps: float = 1.5     # a detection moving otherwise along the ray by more is someone else
-    sighting_speed_points: int = 3      # ... when it has at least this many returns (one or two: wheels)
+    sighting: SightingModel = SightingModel()   # where a detection puts its radar; who moves otherwise
     polish_iterations: int = 8
     quick_polish_iterations: int = 3    # in a tracking frame (the matcher's quick_iterations)
 
@@ -143,7 +140,7 @@ class ConstrainedAligner:
             return T, None
         D = np.zeros((len(A.centres) + 1, len(B.centres) + 1))
         D[:-1, :-1] = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
-        A2, B2 = _with_bodies(A, B, cfg)
+        A2, B2 = _with_bodies(A, B, own, other, seen, cfg)
         rounds = cfg.quick_polish_iterations if quick else cfg.polish_iterations
         R2, t2 = refine_many(A2, B2, D, own.background[:, :2], other.background[:, :2], R[None], t[None],
                              heading_yaws(own, other), replace(cfg.refine, iterations=rounds),
@@ -163,21 +160,22 @@ def sightings(A: Observations, B: Observations, own: SharedFrame, other: SharedF
     paired with the CAV itself (column Vb), and the CAV's nearest to the Ego's body with the Ego
     itself (row Va), each only within sighting_gate (Mahalanobis, both positions' spreads) and
     not moving otherwise than that radar along the line of sight; None when neither is seen."""
-    body = np.array([0.0, -cfg.body_offset_m])
+    model = cfg.sighting
     allowed = np.zeros((len(A.centres) + 1, len(B.centres) + 1), bool)
     allowed[pairs[:, 0], pairs[:, 1]] = True
-    views = ((A, own, R @ body + t, R @ np.asarray(other.ego_velocity, float).reshape(2), pairs[:, 0]),
-             (B, other, R.T @ (body - t), R.T @ np.asarray(own.ego_velocity, float).reshape(2), pairs[:, 1]))
+    # each view's radar and heading in the other's frame
+    views = ((A, own, t, R[:, 1], R @ np.asarray(other.ego_velocity, float).reshape(2), pairs[:, 0]),
+             (B, other, -R.T @ t, R[1], R.T @ np.asarray(own.ego_velocity, float).reshape(2), pairs[:, 1]))
     found = False
-    for side, (obs, frame, where, velocity, matched) in enumerate(views):
+    for side, (obs, frame, radar, heading, velocity, matched) in enumerate(views):
         if not len(obs.centres):
             continue
-        d = obs.centres - where
-        S = obs.cov + cfg.sighting_sigma_m ** 2 * np.eye(2)
+        d = obs.centres + model.offsets(frame)[:, None] * heading - radar      # where each puts that radar
+        S = obs.cov + model.sigmas(frame)[:, None, None] ** 2 * np.eye(2)
         m2 = np.einsum("vi,vij,vj->v", d, np.linalg.inv(S), d)
         g, u = radial_ground_speeds(frame)
-        m2[moving_otherwise(g, u, point_counts(frame), velocity[None], cfg.sighting_speed_mps,
-                            cfg.sighting_speed_points)[0]] = np.inf
+        m2[moving_otherwise(g, u, point_counts(frame), velocity[None], model.speed_mps,
+                            model.speed_points)[0]] = np.inf
         m2[matched] = np.inf
         k = int(np.argmin(m2))
         if m2[k] < cfg.sighting_gate ** 2:
@@ -196,16 +194,21 @@ def pair_information(a: np.ndarray, Sa: np.ndarray, b: np.ndarray, Sb: np.ndarra
     return information_sum(Jy[None], inv2(Sa + R @ Sb @ R.T)[None])[0]
 
 
-def _with_bodies(A: Observations, B: Observations, cfg: ConstrainedConfig) -> tuple[Observations, Observations]:
-    """Both views' vehicles with the observing vehicle itself appended (its centre behind its radar)."""
-    body = np.array([[0.0, -cfg.body_offset_m]])
-    S = cfg.sighting_sigma_m ** 2 * np.eye(2)[None]
+def _with_bodies(A: Observations, B: Observations, own: SharedFrame, other: SharedFrame, seen: np.ndarray,
+                 cfg: ConstrainedConfig) -> tuple[Observations, Observations]:
+    """Both views' vehicles with the observing vehicle itself appended: its centre behind its
+    radar where the other view's detection of it (`sightings` `seen`) says, with that spread."""
+    model = cfg.sighting
 
-    def plus(o: Observations) -> Observations:
+    def plus(o: Observations, by: np.ndarray, frame: SharedFrame) -> Observations:
+        k = np.flatnonzero(by)
+        off = model.offsets(frame)[k[0]] if len(k) else model.body_offset_m
+        sigma = model.sigmas(frame)[k[0]] if len(k) else model.sigma_m
+        body, S = np.array([[0.0, -off]]), sigma ** 2 * np.eye(2)[None]
         return Observations(np.vstack([o.centres, body]), np.concatenate([o.cov, S]),
                             np.vstack([o.cam_centres, body]), np.concatenate([o.cam_cov, S]),
                             np.append(o.cam_penalty, 0.0))
-    return plus(A), plus(B)
+    return plus(A, seen[-1, :-1], other), plus(B, seen[:-1, -1], own)
 
 
 def _distinct(R: np.ndarray, t: np.ndarray, score: np.ndarray, cfg: ConstrainedConfig) -> np.ndarray:

@@ -16,8 +16,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree,
-                             detection_scores, heading_yaws, road_speed_consistency)
+from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, SightingModel, background_tree,
+                             detection_scores, heading_yaws, road_speed_consistency, sighting_offsets)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import (ObservationModel, Observations, mahalanobis, observe,
                                      pair_major_mahalanobis)
@@ -80,7 +80,7 @@ class ConsensusConfig:
     miss_weight: float = 0.1             # per vehicle that the other camera should see but did not
     sighting_weight: float = 1.0         # the other vehicle itself found where the hypothesis puts it
     sighting_m: float = 3.5
-    body_offset_m: float = 2.3           # radar (front bumper) to vehicle centre
+    sighting: SightingModel = SightingModel()  # where a detection puts the radar of the vehicle it is
     speed_weight: float = 0.5            # road-speed agreement (+1 / 0 / -1) in likeness units
     pair_score_share: float = 0.0        # share of a pair-scoring network's score p (as 2 p - 0.5,
                                          # likeness units) in each pair's likeness, the rest
@@ -123,6 +123,7 @@ class ConsensusMatcher:
         if ctx.prior_T is not None and ctx.prior_only:
             cand = cand[:0]                   # tracking frame: the prediction is the only hypothesis
         yaws = heading_yaws(own, other)
+        offsets = sighting_offsets(own, other, cfg.sighting)
         cost = D[cand[:, 0], cand[:, 1]]
         most = max(300, cfg.coarse_budget // max(len(A.centres) * len(B.centres), 1))
         R, t = _pair_hypotheses(A.centres, B.centres, cand, cfg, cost, most)
@@ -139,7 +140,7 @@ class ConsensusMatcher:
                 R, t = R[keep], t[keep]
         n_regular = len(R)
         if yaws is not None and cfg.sighting_hypotheses and ctx.prior_T is None:
-            R2, t2 = _sighting_hypotheses(A.centres, B.centres, yaws, cfg.body_offset_m)
+            R2, t2 = _sighting_hypotheses(A.centres, B.centres, yaws, *offsets)
             R, t = np.concatenate([R, R2]), np.concatenate([t, t2])
         n_sighting = len(R) - n_regular
         prior = ctx.prior_T
@@ -149,7 +150,7 @@ class ConsensusMatcher:
             return MatchResult()
         speed = road_speed_consistency(own, other)
         alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg), P)
-        veh_score = _vehicle_scores(A, B, alike_of(R), R, t, cfg)
+        veh_score = _vehicle_scores(A, B, alike_of(R), R, t, cfg, offsets)
         rank, n_refine = veh_score, cfg.refine_hypotheses
         if prior is not None:
             rank = np.concatenate([veh_score[:-1], [np.inf]])
@@ -167,7 +168,7 @@ class ConsensusMatcher:
         R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree)
         Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
         # the unrefined hypotheses' vehicle scores are the coarse ones (row by row the same)
-        refined = _vehicle_scores(A, B, alike_of(R_ref), R_ref, t_ref, cfg)
+        refined = _vehicle_scores(A, B, alike_of(R_ref), R_ref, t_ref, cfg, offsets)
         total = np.concatenate([veh_score[top], refined]) \
             + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
         if prior is not None and cfg.prior_weight:
@@ -215,6 +216,7 @@ class ConsensusMatcher:
         bg_own, bg_other = own.background[:, :2], other.background[:, :2]
         tree = background_tree(own)
         alike_of = None
+        offsets = sighting_offsets(own, other, cfg.sighting)
         if len(A.centres) and len(B.centres):
             D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
             alike_of = _likeness(D, heading_yaws(own, other), road_speed_consistency(own, other), cfg,
@@ -224,7 +226,7 @@ class ConsensusMatcher:
             if len(R) == 0:
                 return np.zeros(0)
             bg = cfg.background_weight * _background_scores(bg_own, bg_other, R, t, cfg, tree)
-            return bg if alike_of is None else _vehicle_scores(A, B, alike_of(R), R, t, cfg) + bg
+            return bg if alike_of is None else _vehicle_scores(A, B, alike_of(R), R, t, cfg, offsets) + bg
         return of
 
 
@@ -315,17 +317,18 @@ def best_first(rank: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.lexsort((t[:, 1], t[:, 0], -rank))
 
 
-def _sighting_hypotheses(A, B, yaws, body_offset_m):
+def _sighting_hypotheses(A, B, yaws, off_a, off_b):
     """Transforms that put the other vehicle on one own detection, or the own vehicle on one of the
     other's, under each heading-prior yaw: (4 (Va + Vb), 2, 2), (4 (Va + Vb), 2).
 
-    The radar sits body_offset_m ahead of its vehicle's centre (y forward): other -> own maps the
-    other's body centre (0, -offset) onto own detection A[k]; the own body centre onto B[m] is
-    R B[m] + t = (0, -offset)."""
+    A radar sits off_a[k] (off_b[m]) ahead of detection A[k]'s (B[m]'s) centre along that
+    vehicle's heading (y forward; `SightingModel.offsets`): other -> own maps the other's
+    body centre (0, -off_a[k]) onto own detection A[k]; the own body centre (0, -off_b[m]) onto
+    B[m] is R B[m] + t = (0, -off_b[m])."""
     Rk = _rotations(yaws)                                                   # (Y, 2, 2)
-    body = np.array([0.0, -body_offset_m])
-    t_a = A[:, None] - (Rk @ body)[None]                                        # (Va, Y, 2)
-    t_b = body - (B @ Rk.transpose(0, 2, 1)).transpose(1, 0, 2)                # (Vb, Y, 2)
+    t_a = A[:, None] + off_a[:, None, None] * Rk[None, :, :, 1]                # (Va, Y, 2)
+    body_b = np.column_stack([np.zeros(len(B)), -off_b])
+    t_b = body_b[:, None] - (B @ Rk.transpose(0, 2, 1)).transpose(1, 0, 2)    # (Vb, Y, 2)
     t = np.concatenate([t_a.reshape(-1, 2), t_b.reshape(-1, 2)])
     R = np.tile(Rk, (len(A) + len(B), 1, 1))
     return R, t
@@ -386,7 +389,7 @@ def _in_view(p: np.ndarray, cfg: ConsensusConfig) -> np.ndarray:
     return (r > 4.0) & (r < cfg.camera_range_m) & (az < np.radians(cfg.camera_half_fov_deg))
 
 
-def _vehicle_scores(A: Observations, B: Observations, alike, R, t, cfg):
+def _vehicle_scores(A: Observations, B: Observations, alike, R, t, cfg, offsets=None):
     """(H,) evidence for each hypothesis from the vehicles alone.
 
     + each own vehicle landing near a look-alike other vehicle (closeness in Mahalanobis
@@ -394,15 +397,17 @@ def _vehicle_scores(A: Observations, B: Observations, alike, R, t, cfg):
     - each vehicle the other camera should have seen, unmatched (misses cost less than
       wrong matches: occlusion hides some);
     + the other vehicle itself among the detections where the hypothesis puts it.
+
+    offsets: (Va,), (Vb,) `sighting_offsets` (None: every detection at the car's).
     """
     out = np.empty(len(R))
     for lo in range(0, len(R), 512):                                  # bounded memory
         sl = slice(lo, lo + 512)
-        out[sl] = _vehicle_scores_chunk(A, B, alike if len(alike) == 1 else alike[sl], R[sl], t[sl], cfg)
+        out[sl] = _vehicle_scores_chunk(A, B, alike if len(alike) == 1 else alike[sl], R[sl], t[sl], cfg, offsets)
     return out
 
 
-def _vehicle_scores_chunk(A, B, alike, R, t, cfg):
+def _vehicle_scores_chunk(A, B, alike, R, t, cfg, offsets=None):
     """`_vehicle_scores` of up to 512 hypotheses. The distances and their reductions have the
     hypotheses last (numpy reduces short last axes slowly); each hypothesis's closeness is
     summed over a (H, Va) array, as it always was."""
@@ -416,14 +421,16 @@ def _vehicle_scores_chunk(A, B, alike, R, t, cfg):
     Va = len(A.centres)
     Ac, Bc = A.centres, B.centres
     Bt = Bc @ R.transpose(0, 2, 1) + t[:, None]                        # (H, Vb, 2) other vehicles, own frame
-    body = np.array([0.0, -cfg.body_offset_m])
+    body = np.array([0.0, -cfg.sighting.body_offset_m])
     cav_body = R @ body + t                                            # (H, 2) other vehicle's centre, own frame
     A_in_cav = (Ac[None] - t[:, None]) @ R                             # (H, Va, 2) own vehicles, other frame
     ego_body_in_cav = ((body[None] - t)[:, None] @ R)[:, 0]            # (H, 2)
-    # the sightings of both views (own vehicles at the other's body, other vehicles at the
-    # own body) and where each camera looks, each in one call for both
-    sighted = lengths(np.concatenate([Ac[None] - cav_body[:, None], Bt - body], axis=1)) \
-        < cfg.sighting_m                                               # (H, Va + Vb)
+    off_a, off_b = offsets if offsets is not None else (np.full(Va, -body[1]), np.full(len(Bc), -body[1]))
+    # the sightings of both views (an own vehicle where it puts the other radar, an other
+    # vehicle at the own body) and where each camera looks, each in one call for both
+    at_radar = Ac[None] + off_a[None, :, None] * R[:, None, :, 1] - t[:, None]      # (H, Va, 2)
+    at_body = Bt - np.column_stack([np.zeros(len(Bc)), -off_b])        # (H, Vb, 2)
+    sighted = lengths(np.concatenate([at_radar, at_body], axis=1)) < cfg.sighting_m  # (H, Va + Vb)
     a_is_cav, b_is_ego = sighted[:, :Va], sighted[:, Va:]
     places = np.concatenate([A_in_cav, Bt, cav_body[:, None], ego_body_in_cav[:, None]], axis=1)
     view = _in_view(places, cfg)                                       # (H, Va + Vb + 2)

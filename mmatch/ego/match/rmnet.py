@@ -38,7 +38,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree, heading_yaws,
-                             road_speed_consistency)
+                             road_speed_consistency, sighting_offsets)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.match import consensus as cs
 from mmatch.ego.match.graph import build_graph
@@ -191,7 +191,8 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
         R_ref, t_ref = refine_many(A, B, D, bg_own, bg_other, R[top], t[top], yaws, rcfg, tree, allowed)
         if time.thread_time() < deadline:
             Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
-            total = cs._vehicle_scores(A, B, alike_of(Rr), Rr, tr, ccfg) \
+            offsets = sighting_offsets(own, other, ccfg.sighting)
+            total = cs._vehicle_scores(A, B, alike_of(Rr), Rr, tr, ccfg, offsets) \
                 + ccfg.background_weight * cs._background_scores(bg_own, bg_other, Rr, tr, ccfg, tree)
             if prior is not None and ccfg.prior_weight:
                 total = total + ccfg.prior_weight * cs._prior_agreement(Rr, tr, prior, ccfg)
