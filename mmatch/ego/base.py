@@ -315,10 +315,10 @@ class SightingModel:
     (`far_side_centres`) to the radar is about half the vehicle's length ahead along its
     heading. The length is not on the wire, but the camera box hints at it: a box taller than
     long_height_m (m, its pixel height at the box depth) is a bus or lorry. Measured on the
-    detections of the other vehicle itself in wide hard and nominal easy scenes (seeds 1, 3, 4,
-    100, 101; 1331 detections, 159 of long vehicles): along the heading 2.12 m median for cars
-    (1.14-3.05 m, 10-90 %), 4.78 m for long ones (2.0-7.6 m); a box taller than 2.6 m held 157 of
-    the 159 long ones and 31 of 1172 cars. body_offset_m / long_offset_m: that distance; sigma_m /
+    detections of the other vehicle itself in wide hard seeds 1, 3, 4, 100, wide easy 101 and
+    nominal easy 3, 4 (1331 detections, 159 of long vehicles): along the heading 2.12 m median
+    for cars (1.14-3.05 m, 10-90 %), 4.78 m for long ones (2.0-7.6 m); a box taller than 2.6 m
+    held 157 of the 159 long ones and 31 of 1172 cars. body_offset_m / long_offset_m: that distance; sigma_m /
     long_sigma_m: its spread either way (m). speed_mps: a detection whose radial ground speed
     differs from that radar's own velocity along the line of sight by more is someone else,
     judged on detections of at least speed_points returns (one or two may be wheels).

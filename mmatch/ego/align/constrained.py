@@ -13,10 +13,11 @@ puts most of the other view's background on the own view's wins.
 sightings of each other: a vehicle of one view (not matched to the other view) found where
 the transform puts the other radar's vehicle, moving as that radar moves along the line of
 sight, is the other vehicle itself, a pair term like any matched vehicle (its radar where
-`SightingModel.offsets` puts it ahead of the detection, that model's sigmas either way). With two co-visible vehicles
-strung along one street, the matched pairs and a straight roadside leave the slide along the
-street loose; a sighting pins it. It runs after the confidence model has rated the
-candidates, so the sighting evidence (ego/confidence.py) is not confirmed by a fit that used it.
+`SightingModel.offsets` puts it ahead of the detection, that model's sigmas either way). With
+two co-visible vehicles strung along one street, the matched pairs and a straight roadside
+leave the slide along the street loose; a sighting pins it. It runs after the confidence model
+has rated the candidates, so the sighting evidence (ego/confidence.py) is not confirmed by a
+fit that used it.
 """
 
 from __future__ import annotations

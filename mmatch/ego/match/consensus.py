@@ -403,7 +403,8 @@ def _vehicle_scores(A: Observations, B: Observations, alike, R, t, cfg, offsets=
     out = np.empty(len(R))
     for lo in range(0, len(R), 512):                                  # bounded memory
         sl = slice(lo, lo + 512)
-        out[sl] = _vehicle_scores_chunk(A, B, alike if len(alike) == 1 else alike[sl], R[sl], t[sl], cfg, offsets)
+        out[sl] = _vehicle_scores_chunk(A, B, alike if len(alike) == 1 else alike[sl], R[sl], t[sl], cfg,
+                                        offsets)
     return out
 
 
