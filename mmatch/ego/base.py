@@ -352,6 +352,20 @@ def sighting_offsets(own: SharedFrame, other: SharedFrame,
     return model.offsets(own), model.offsets(other)
 
 
+def sighting_gaps(R: np.ndarray, t: np.ndarray, own_centres: np.ndarray, other_centres: np.ndarray,
+                  offsets: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Each detection taken as the other view's vehicle, under hypotheses R (H, 2, 2), t (H, 2)
+    of the other -> own transform: (H, Va, 2) from the other radar to where each own detection
+    (own_centres (Va, 2)) puts it, own frame, and (H, Vb, 2) from the own radar to where each
+    other detection puts that, other frame, m; a detection puts a radar `offsets` ((Va,), (Vb,),
+    `sighting_offsets`) ahead of itself along that vehicle's forward (y) axis."""
+    off_own, off_other = offsets
+    radar_other, forward_other = t, R[:, :, 1]                              # in the own frame
+    radar_own, forward_own = -np.einsum("hba,hb->ha", R, t), R[:, 1, :]       # in the other's
+    return (own_centres[None] + off_own[None, :, None] * forward_other[:, None] - radar_other[:, None],
+            other_centres[None] + off_other[None, :, None] * forward_own[:, None] - radar_own[:, None])
+
+
 def moving_otherwise(g: np.ndarray, u: np.ndarray, n: np.ndarray, v: np.ndarray, speed_mps: float,
                      min_points: int) -> np.ndarray:
     """(H, V) whether each vehicle (radial ground speed g (V,) m/s along its line of sight u (V, 2),

@@ -49,8 +49,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mmatch.ego.base import (Hypotheses, MatchResult, SightingModel, background_tree, heading_yaws,
-                             moving_otherwise, point_counts, radial_ground_speeds, sighting_offsets,
-                             velocity_heading_yaws)
+                             moving_otherwise, point_counts, radial_ground_speeds, sighting_gaps,
+                             sighting_offsets, velocity_heading_yaws)
 from mmatch.ego.confidence_trees import TreeEnsemble, choice_features
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.rigid import inv2, rot2
@@ -568,20 +568,15 @@ def _sighting(ctx: PairContext, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarra
     ego_in_cav = np.einsum("hba,hb->ha", R, body[None] - t)
     v_cav = np.einsum("hab,b->ha", R, np.asarray(ctx.other.ego_velocity, float).reshape(2))      # Ego frame
     v_ego = np.einsum("hba,b->ha", R, np.asarray(ctx.own.ego_velocity, float).reshape(2))        # CAV frame
-    # each view's radar and heading in the other's frame, and where its detections put them
-    radar_cav, radar_ego = t, -np.einsum("hba,hb->ha", R, t)
-    heading_cav, heading_ego = R[:, :, 1], R[:, 1, :]
-    off_own, off_other = sighting_offsets(ctx.own, ctx.other, model)
+    gaps = sighting_gaps(R, t, ctx.A.centres, ctx.B.centres, sighting_offsets(ctx.own, ctx.other, model))
     out, conflict = np.zeros(len(R)), np.zeros(len(R))
-    for where, radar, heading, cents, offs, g, u, v, n in (
-            (cav_in_ego, radar_cav, heading_cav, ctx.A.centres, off_own, ctx.ge, ctx.ue, v_cav, ctx.ne),
-            (ego_in_cav, radar_ego, heading_ego, ctx.B.centres, off_other, ctx.gc, ctx.uc, v_ego, ctx.nc)):
+    for where, gap, cents, g, u, v, n in ((cav_in_ego, gaps[0], ctx.A.centres, ctx.ge, ctx.ue, v_cav, ctx.ne),
+                                          (ego_in_cav, gaps[1], ctx.B.centres, ctx.gc, ctx.uc, v_ego, ctx.nc)):
         r, az = _polar(where)
         view = _in_view(r, az, cfg)
         if not len(cents):
             out -= view
             continue
-        gap = cents[None] + offs[None, :, None] * heading[:, None] - radar[:, None]          # (H, V, 2)
         near = np.sqrt(gap[..., 0] ** 2 + gap[..., 1] ** 2) < cfg.sighting_m                   # (H, V)
         off = moving_otherwise(g, u, n, v, model.speed_mps, model.speed_points)
         seen = near.any(axis=1)

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from mmatch.ego.base import (AlignResult, MatchResult, SightingModel, background_tree, heading_yaws,
-                             moving_otherwise, point_counts, radial_ground_speeds)
+                             moving_otherwise, point_counts, radial_ground_speeds, sighting_gaps,
+                             sighting_offsets)
 from mmatch.ego.confidence import information_sum
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
@@ -164,14 +165,13 @@ def sightings(A: Observations, B: Observations, own: SharedFrame, other: SharedF
     model = cfg.sighting
     allowed = np.zeros((len(A.centres) + 1, len(B.centres) + 1), bool)
     allowed[pairs[:, 0], pairs[:, 1]] = True
-    # each view's radar and heading in the other's frame
-    views = ((A, own, t, R[:, 1], R @ np.asarray(other.ego_velocity, float).reshape(2), pairs[:, 0]),
-             (B, other, -R.T @ t, R[1], R.T @ np.asarray(own.ego_velocity, float).reshape(2), pairs[:, 1]))
+    gaps = sighting_gaps(R[None], t[None], A.centres, B.centres, sighting_offsets(own, other, model))
+    views = ((A, own, gaps[0][0], R @ np.asarray(other.ego_velocity, float).reshape(2), pairs[:, 0]),
+             (B, other, gaps[1][0], R.T @ np.asarray(own.ego_velocity, float).reshape(2), pairs[:, 1]))
     found = False
-    for side, (obs, frame, radar, heading, velocity, matched) in enumerate(views):
+    for side, (obs, frame, d, velocity, matched) in enumerate(views):
         if not len(obs.centres):
             continue
-        d = obs.centres + model.offsets(frame)[:, None] * heading - radar      # where each puts that radar
         S = obs.cov + model.sigmas(frame)[:, None, None] ** 2 * np.eye(2)
         m2 = np.einsum("vi,vij,vj->v", d, np.linalg.inv(S), d)
         g, u = radial_ground_speeds(frame)

@@ -17,7 +17,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, SightingModel, background_tree,
-                             detection_scores, heading_yaws, road_speed_consistency, sighting_offsets)
+                             detection_scores, heading_yaws, road_speed_consistency, sighting_gaps,
+                             sighting_offsets)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import (ObservationModel, Observations, mahalanobis, observe,
                                      pair_major_mahalanobis)
@@ -426,12 +427,11 @@ def _vehicle_scores_chunk(A, B, alike, R, t, cfg, offsets=None):
     cav_body = R @ body + t                                            # (H, 2) other vehicle's centre, own frame
     A_in_cav = (Ac[None] - t[:, None]) @ R                             # (H, Va, 2) own vehicles, other frame
     ego_body_in_cav = ((body[None] - t)[:, None] @ R)[:, 0]            # (H, 2)
-    off_a, off_b = offsets if offsets is not None else (np.full(Va, -body[1]), np.full(len(Bc), -body[1]))
-    # the sightings of both views (an own vehicle where it puts the other radar, an other
-    # vehicle at the own body) and where each camera looks, each in one call for both
-    at_radar = Ac[None] + off_a[None, :, None] * R[:, None, :, 1] - t[:, None]      # (H, Va, 2)
-    at_body = Bt - np.column_stack([np.zeros(len(Bc)), -off_b])        # (H, Vb, 2)
-    sighted = lengths(np.concatenate([at_radar, at_body], axis=1)) < cfg.sighting_m  # (H, Va + Vb)
+    if offsets is None:
+        offsets = (np.full(Va, -body[1]), np.full(len(Bc), -body[1]))
+    # the sightings of both views, (H, Va + Vb): a vehicle where it puts the other radar; and
+    # where each camera looks, each in one call for both
+    sighted = lengths(np.concatenate(sighting_gaps(R, t, Ac, Bc, offsets), axis=1)) < cfg.sighting_m
     a_is_cav, b_is_ego = sighted[:, :Va], sighted[:, Va:]
     places = np.concatenate([A_in_cav, Bt, cav_body[:, None], ego_body_in_cav[:, None]], axis=1)
     view = _in_view(places, cfg)                                       # (H, Va + Vb + 2)
