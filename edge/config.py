@@ -159,10 +159,11 @@ class EgoSection:
     track_max_age_s: float = _opt(2.0, lo=0.0, hi=60.0,
                                   doc="carry each CAV's transform across frames this long (0: off), s")
     confidence_threshold: float = _opt(-1.0, lo=-1.0, hi=1.0,
-                                       doc="an estimate less sure than this (P within 2 m / 5 deg) is published as "
-                                           "'no estimate'; -1: the defaults, chosen on the wide physics family "
-                                           "with a harsher one in view (0.42 a single frame, 0.46 a tracked "
-                                           "transform)")
+                                       doc="an estimate less sure than this (its published confidence: P within "
+                                           "2 m / 5 deg) is published as 'no estimate'; -1: the defaults, chosen "
+                                           "on the wide physics family with a harsher one in view (0.79 a single "
+                                           "frame, the model's 0.42 as published; 0.46 a tracked transform, the "
+                                           "pose filter's belief)")
     max_links: int = _opt(8, lo=1, hi=256,
                           doc="every-CAV mode (cavs = []): at most this many CAVs at once; more are refused")
     link_expire_s: float = _opt(30.0, lo=0.0, lo_open=True, hi=3600.0,

@@ -20,7 +20,7 @@ import numpy as np
 
 from mmatch.ego.registry import DEFAULT_ALIGNER, DEFAULT_MATCHER
 from mmatch.errors import MMatchError, SceneFormatError
-from mmatch.metrics import is_gross, is_success, pair_counts, rre_deg, rte_m, summary
+from mmatch.metrics import is_gross, is_success, pair_counts, reliability, rre_deg, rte_m, summary
 from mmatch.types import Scene
 
 log = logging.getLogger(__name__)
@@ -345,7 +345,9 @@ def sureness_report(ok: list[dict]) -> dict:
     emitted) and risk_coverage: every candidate estimate (emitted or refused for its
     confidence) ranked by confidence, the gross rate and success among the most confident
     ones that cover a share c of all scenes, c = 0.5 ... 1.0 (levels the candidates cannot
-    reach are left out)."""
+    reach are left out); reliability: how well the same candidates' published confidences say
+    how often they are right (metrics.py `reliability`: expected calibration error, Brier
+    score, ten bins)."""
     n = len(ok)
     emitted = [r for r in ok if r.get("candidate") and r["candidate"]["emitted"]]
     gross = [r["candidate"]["gross"] for r in emitted]
@@ -362,10 +364,13 @@ def sureness_report(ok: list[dict]) -> dict:
         curve.append({"coverage": c, "gross_rate": float(np.mean([x["gross"] for x in top])),
                       "success_rate": float(np.mean([x["success"] for x in top])),
                       "min_confidence": float(conf[order[k - 1]])})
+    rated = conf >= 0                                       # candidates with a confidence
+    right = np.array([c["candidate"]["success"] for c in cands], bool)
     return {"coverage": len(emitted) / n if n else 0.0,
             "gross_rate": float(np.mean(gross)) if gross else 0.0,
             "calibration": float(np.mean(inside)) if inside else float("nan"),
-            "risk_coverage": curve}
+            "risk_coverage": curve,
+            "reliability": reliability(conf[rated], right[rated])}
 
 
 def _subset(rows: list[dict]) -> dict:
@@ -412,10 +417,13 @@ def format_table(rep: dict) -> str:
         f"p90 {rep['latency_ms']['total']['p90']:.1f}",
         f"coverage {rep['coverage']:.3f}  gross among emitted {rep['gross_rate']:.3f}  "
         f"95 % ellipse holds the truth {rep['calibration']:.3f}",
+        f"confidence against how often right: expected calibration error {rep['reliability']['ece']:.3f}  "
+        f"Brier {rep['reliability']['brier']:.3f}"
+        if "reliability" in rep else "",
         "risk-coverage: " + "  ".join(f"{x['coverage']:.1f}: gross {x['gross_rate']:.3f} success {x['success_rate']:.3f}"
                                       for x in rep["risk_coverage"]),
         "fewer than two co-visible: " + _subset_line(rep["by_covisible"]["lt2"])
         + "; two or more: " + _subset_line(rep["by_covisible"]["ge2"]),
         "  " + "  ".join(f"{k} {v['median']:.2f}" for k, v in rep["latency_ms"]["stages"].items()),
     ]
-    return "\n".join(lines)
+    return "\n".join(x for x in lines if x)

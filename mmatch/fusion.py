@@ -11,8 +11,8 @@ import numpy as np
 
 from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres,
                              velocity_heading_yaws, without_heading_prior)
-from mmatch.ego.confidence import (ConfidenceConfig, PairContext, assess_many, refusal, shared_view,
-                                   threshold, vehicle_distances, with_information)
+from mmatch.ego.confidence import (ConfidenceConfig, PairContext, assess_many, published_confidence, refusal,
+                                   shared_view, threshold, vehicle_distances, with_information)
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import near_transforms, rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
@@ -210,9 +210,11 @@ class Fuser:
         timings["confidence"] = (time.perf_counter() - t2) * 1e3
         if self.tracker.enabled:
             return self._tracked(own, other, pred, cands, match, timings, predicted is None, a.reason, (T, a))
-        sure = dict(confidence=a.confidence, covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features,
-                    candidates=cands)
         ccfg = self.config.confidence
+        # published with the model's calibration; the gates read the raw probability (the same
+        # decisions, ego/confidence.py `ProbabilityModel.published`)
+        sure = dict(confidence=published_confidence(a.confidence, ccfg, heading), covariance=a.covariance,
+                    ambiguity=a.ambiguity, evidence=a.features, candidates=cands)
         thr = self._threshold if heading else self._threshold_no_heading
         why = refusal(a.confidence, a.features, thr, ccfg)
         if why is not None:

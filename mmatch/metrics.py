@@ -1,4 +1,5 @@
-"""Accuracy metrics of DESIGN.md: RRE, RTE, success, co-visible pair precision and recall."""
+"""Accuracy metrics of DESIGN.md: RRE, RTE, success, co-visible pair precision and recall, and
+how well confidences say how often estimates are right (`reliability`)."""
 
 from __future__ import annotations
 
@@ -52,3 +53,23 @@ def summary(values: list[float]) -> dict[str, float]:
         return {"median": float("nan"), "mean": float("nan"), "p90": float("nan")}
     a = np.asarray(values, float)
     return {"median": float(np.median(a)), "mean": float(a.mean()), "p90": float(np.percentile(a, 90))}
+
+
+def reliability(p: np.ndarray, success: np.ndarray, bins: int = 10) -> dict:
+    """How well confidences p (n,) say how often estimates are right (success (n,)): the
+    expected calibration error (share-weighted |mean confidence - success rate| over `bins`
+    equal-width bins), the Brier score and the bins (lo, hi, n, confidence, success)."""
+    p, y = np.asarray(p, float), np.asarray(success, float)
+    ok = np.isfinite(p)
+    p, y = p[ok], y[ok]
+    rows, ece = [], 0.0
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    k = np.clip(np.searchsorted(edges, p, side="right") - 1, 0, bins - 1)
+    for b in range(bins):
+        m = k == b
+        if m.any():
+            rows.append({"lo": float(edges[b]), "hi": float(edges[b + 1]), "n": int(m.sum()),
+                         "confidence": float(p[m].mean()), "success": float(y[m].mean())})
+            ece += m.mean() * abs(p[m].mean() - y[m].mean())
+    return {"ece": float(ece) if len(p) else float("nan"),
+            "brier": float(np.mean((p - y) ** 2)) if len(p) else float("nan"), "bins": rows}

@@ -41,6 +41,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the gross rate among the emitted each --threshold-on family must keep")
     p.add_argument("--threshold-only", action="store_true",
                    help="keep the model file as it is and choose only its threshold (needs --threshold-on)")
+    p.add_argument("--calibration-only", action="store_true",
+                   help="keep the model file as it is and refit only the map from its probability to the "
+                        "published confidence (the default matcher's chosen estimates on the folders; the "
+                        "second model's on the same folders run without the heading prior, unless "
+                        "--no-without-heading)")
     p.add_argument("--inflation-only", action="store_true",
                    help="keep the model file as it is and refit only its covariance inflations on the folders "
                         "(the default matcher's published estimates; the second model's on the same folders "
@@ -69,13 +74,16 @@ def run(args: argparse.Namespace) -> int:
         raise ParseError("--threshold-only needs at least one --threshold-on family")
     if not args.folders and not args.threshold_only:
         raise ParseError("give the folders to fit on (or --threshold-only)")
-    if sum((args.trees_only, args.threshold_only, args.inflation_only)) > 1:
-        raise ParseError("--trees-only, --threshold-only and --inflation-only: one at a time")
+    only = (args.trees_only, args.threshold_only, args.inflation_only, args.calibration_only)
+    if sum(only) > 1:
+        raise ParseError("--trees-only, --threshold-only, --inflation-only and --calibration-only: one at a time")
+    if args.calibration_only and not args.folders:
+        raise ParseError("--calibration-only: give the folders to fit on")
     if not 0.0 <= args.threshold_max_gross < 1.0:
         raise ParseError(f"--threshold-max-gross: {args.threshold_max_gross} is not in [0, 1)")
     out = Path(args.out) if args.out else MODEL_PATH
-    if args.trees_only or args.threshold_only or args.inflation_only:
-        what = "--trees-only" if args.trees_only else "--threshold-only" if args.threshold_only else "--inflation-only"
+    if any(only):
+        what = ("--trees-only", "--threshold-only", "--inflation-only", "--calibration-only")[only.index(True)]
         kept = load_model(str(out)) if args.out else load_model()
         if kept is None:
             raise ParseError(f"{what}: no model at {out} to keep")
@@ -84,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
             model = _with_inflation(model, args)
         if families:
             model = _with_threshold(model, families, args)
+        if args.calibration_only:
+            model = _with_calibration(model, args)
         out.write_text(model.to_json() + "\n")
         _report(model)
         print(f"wrote {out}")
@@ -117,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         raise ParseError(str(exc)) from exc
     if families:
         model = _with_threshold(model, families, args)
+    model = _with_calibration(model, args)
     out.write_text(model.to_json() + "\n")
     _report(model)
     print(f"wrote {out}")
@@ -182,6 +193,45 @@ def _with_inflation(model, args: argparse.Namespace):
     out = refit(model, True)
     if args.without_heading and model.without_heading is not None:
         out = replace(out, without_heading=refit(model.without_heading, False))
+    return out
+
+
+def _with_calibration(model, args: argparse.Namespace):
+    """`model` with each of its models' calibration (ProbabilityModel.calibration) fit on the
+    folders: the default matcher's chosen estimate of every scene, run under `model` without a
+    calibration and every candidate emitted (its raw probability, and whether it is right); the
+    second model's on the folders run without the heading prior (unless --no-without-heading)."""
+    import numpy as np
+
+    from mmatch.ego.confidence_fit import fit_calibration
+    from mmatch.errors import ParseError
+    from mmatch.metrics import reliability
+
+    sub0 = model.without_heading
+    bare = replace(model, calibration=None,
+                   without_heading=replace(sub0, calibration=None) if sub0 is not None else None)
+
+    def refit(sub, heading: bool):
+        runs = _runs(bare, args.folders, heading, "calibration", args.jobs)
+        rows = [(r["confidence"], r["candidate"]["success"]) for r in runs
+                if r.get("candidate") and r.get("confidence") is not None]
+        p, y = np.array([c for c, _ in rows], float), np.array([s for _, s in rows], bool)
+        try:
+            cal = fit_calibration(p, y)
+        except ValueError as exc:
+            raise ParseError(f"calibration{'' if heading else ' without a heading prior'}: {exc}") from exc
+        fitted = replace(sub, calibration=cal)
+        before, after = reliability(p, y), reliability(fitted.published(p), y)
+        print(f"calibration{'' if heading else ' without a heading prior'}: a {cal[0]:.3f}, b {cal[1]:.3f} on "
+              f"{len(p)} chosen estimates ({y.mean():.3f} right, mean raw probability {p.mean():.3f}); expected "
+              f"calibration error {before['ece']:.3f} -> {after['ece']:.3f}, Brier {before['brier']:.4f} -> "
+              f"{after['brier']:.4f}; threshold {sub.threshold:.3f} publishes as {fitted.published(sub.threshold):.3f}")
+        choice = f"a {cal[0]:.4f}, b {cal[1]:.4f}: fit on the chosen estimates of " + ",".join(args.folders)
+        return replace(fitted, meta=dict(sub.meta, calibration_choice=choice))
+
+    out = refit(model, True)
+    if args.without_heading and sub0 is not None:
+        out = replace(out, without_heading=refit(sub0, False))
     return out
 
 

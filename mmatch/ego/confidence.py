@@ -82,8 +82,9 @@ REASONS: dict[str, str] = {
 
 @dataclass(frozen=True)
 class ConfidenceConfig:
-    """threshold: an estimate is "fused" only when its probability reaches this (else "no
-    estimate" with the reason; None: the fitted model's threshold); min_margin: an estimate
+    """threshold: an estimate is "fused" only when its published confidence reaches this (else
+    "no estimate" with the reason; None: the fitted model's threshold, which like every gate
+    below is on the model's raw probability, `ProbabilityModel.published`); min_margin: an estimate
     whose margin over the best distinct alternative, by the matcher's own evidence, is below
     this is refused as ambiguous whatever its probability, unless the threshold is 0 (emit
     everything); None (default): no such gate, the margin weighs in the probability only (with
@@ -96,7 +97,7 @@ class ConfidenceConfig:
     gave tracked success +0.5 points for 4 more frames with a gross error of 5400 (0.17 -> 0.24 %
     of frames: one gross frame for about six right ones gained); single_pair_threshold:
     an estimate that rests on at most one vehicle pair while neither vehicle sees the other
-    where it puts it (sighting <= 0) is fused only at this probability or above (unless the
+    where it puts it (sighting <= 0) is fused only at this raw probability or above (unless the
     threshold is 0): the one-model fit is least calibrated there, and on wide easy scenes of
     seeds 101 and 104, 0.75 took the "no estimate or right" share of scenes with fewer than
     two co-visible vehicles from 0.79 / 0.80 to 0.89 / 0.95 for 1.5 points of success on wide
@@ -175,7 +176,17 @@ class ProbabilityModel:
     boosted trees over the same (ego/confidence_trees.py): the confidence is then the mean of
     the two probabilities. The chooser (trees over the candidates' evidence relative to each
     other, confidence_trees.py) picks among a frame pair's candidates; without it the
-    regression does."""
+    regression does. calibration: (a, b) of the map from this probability, the arbiter's, to
+    the confidence an estimate is published with (`published`): sigmoid(a logit(p) + b), fit
+    on the estimates the model chose (`fit-confidence --calibration-only`); None: p itself.
+
+    Why a second map: the probability is fit on every candidate the arbiter weighs, most of them
+    wrong, and the one chosen is the most probable of its frame pair; among the chosen ones the
+    raw probability said 0.65 on average where 0.84 were right (wide hard seeds 100-104: at 0.42,
+    the threshold, 0.79 of them). The map is monotone: the arbiter's choice, the ranking by
+    confidence and every gate (thresholds stay in the model's raw units, a configured one is
+    mapped back, `threshold`) are unchanged; the tracker weighs the raw probabilities its
+    settings were chosen on."""
 
     features: tuple[str, ...]
     mean: np.ndarray
@@ -188,6 +199,26 @@ class ProbabilityModel:
     without_heading: "ProbabilityModel | None" = None   # for frame pairs without a heading prior
     trees: TreeEnsemble | None = None
     chooser: TreeEnsemble | None = None
+    calibration: tuple[float, float] | None = None
+
+    def published(self, p: float | np.ndarray) -> float | np.ndarray:
+        """The published confidence of an estimate of raw probability p (0-1): `calibration`'s map."""
+        if self.calibration is None:
+            return p
+        a, b = self.calibration
+        q = np.clip(np.asarray(p, float), 0.0, 1.0)
+        with np.errstate(divide="ignore"):
+            z = a * (np.log(q) - np.log1p(-q)) + b
+        out = 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
+        out = np.where(q <= 0.0, 0.0, np.where(q >= 1.0, 1.0, out))
+        return float(out) if np.ndim(p) == 0 else out
+
+    def raw(self, q: float) -> float:
+        """The raw probability whose published confidence is q (0-1): `published` inverted."""
+        if self.calibration is None or q <= 0.0 or q >= 1.0:
+            return float(min(max(q, 0.0), 1.0))
+        a, b = self.calibration
+        return float(1.0 / (1.0 + np.exp(-np.clip((np.log(q) - np.log1p(-q) - b) / a, -40, 40))))
 
     def for_heading(self, known: bool) -> "ProbabilityModel":
         """The model for a frame pair with (known) or without the velocities' heading prior
@@ -231,6 +262,8 @@ class ProbabilityModel:
             d["trees"] = self.trees.to_dict()
         if self.chooser is not None:
             d["chooser"] = self.chooser.to_dict()
+        if self.calibration is not None:
+            d["calibration"] = {"a": float(self.calibration[0]), "b": float(self.calibration[1])}
         return d
 
     def to_json(self) -> str:
@@ -256,10 +289,14 @@ class ProbabilityModel:
             chooser = d.get("chooser")
             chooser = TreeEnsemble.from_dict(chooser, 2 * len(FEATURES) + 4, f"{where}: chooser") \
                 if chooser is not None else None
+            cal = d.get("calibration")
+            cal = (float(cal["a"]), float(cal["b"])) if cal is not None else None
             model = cls(feats, *arrays, float(d["intercept"]), float(d.get("inflation", 1.0)),
-                        float(d.get("threshold", 0.5)), dict(d.get("meta", {})), sub, trees, chooser)
+                        float(d.get("threshold", 0.5)), dict(d.get("meta", {})), sub, trees, chooser, cal)
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise ConfigError(f"{where}: not a confidence model ({exc})") from exc
+        if cal is not None and not (np.isfinite(cal[1]) and np.isfinite(cal[0]) and cal[0] > 0):
+            raise ConfigError(f"{where}: calibration needs a finite a > 0 and a finite b, got {cal}")
         if feats != FEATURES or any(a.shape != (len(FEATURES),) for a in arrays) \
                 or not all(np.all(np.isfinite(a)) for a in arrays) or np.any(model.scale <= 0):
             raise ConfigError(f"{where}: confidence model expects features {', '.join(FEATURES)}")
@@ -842,15 +879,25 @@ def refusal(confidence: float, features: dict, thr: float, cfg: ConfidenceConfig
 
 
 def threshold(cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True, tracked: bool = False) -> float:
-    """The probability below which an estimate is refused (0 without a model): the configured
-    one, else (tracked) the configured one for a track's hypotheses, else the fitted model's for
-    frame pairs with (heading) or without a heading prior."""
+    """The probability below which an estimate is refused (0 without a model), in the units its
+    gate reads: for a single frame the model's raw probability (`refusal` reads the arbiter's,
+    before `ProbabilityModel.published`): the configured threshold, which is in published units,
+    mapped back, else the fitted model's for frame pairs with (heading) or without a heading
+    prior; tracked: the configured one, else the one for a track's hypotheses (the tracker's
+    confidence is its own), else the fitted model's."""
+    model = _model(cfg, heading)
     if cfg.threshold is not None:
-        return float(cfg.threshold)
+        return float(cfg.threshold) if tracked or model is None else model.raw(float(cfg.threshold))
     if tracked and cfg.track_threshold is not None:
         return float(cfg.track_threshold)
-    model = load_model(cfg.model_path)
-    return model.for_heading(heading).threshold if model is not None else 0.0
+    return model.threshold if model is not None else 0.0
+
+
+def published_confidence(p: float, cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True) -> float:
+    """The confidence a single frame's estimate of raw probability p is published with (the
+    model's calibration for frame pairs with or without a heading prior; p without a model)."""
+    model = _model(cfg, heading)
+    return float(model.published(p)) if model is not None and np.isfinite(p) else p
 
 
 def with_information(cov: np.ndarray, info: np.ndarray, cfg: ConfidenceConfig = ConfidenceConfig(),

@@ -12,6 +12,9 @@ Beside the regression, `fit_tree_stage` fits boosted trees (ego/confidence_trees
 default matcher's candidates, whose mean with the regression is the confidence, and the chooser
 that picks among a frame pair's candidates.
 
+`fit_calibration` fits the map from the model's probability to the published confidence on
+the estimates it chose (ProbabilityModel.calibration).
+
 `gated_threshold` chooses the threshold instead on tuning families (e.g. wide physics and a
 harsher one): the lowest at which the gross rate among what a single frame emits, with the
 Fuser's other gates (`confidence.refusal`), stays within a bound in every family.
@@ -58,6 +61,32 @@ def fit_inflation(chosen: list[dict], target: float = 0.95) -> float:
     if not d2:
         return 1.0
     return float(max(np.quantile(d2, target) / CHI2_3_95, 1e-3))
+
+
+def fit_calibration(p: np.ndarray, success: np.ndarray, iterations: int = 50) -> tuple[float, float]:
+    """Platt's map (a, b) of `ProbabilityModel.calibration`: the logistic regression of success
+    (n,) on the log-odds of the raw probabilities p (n,) of the estimates the model chose, by
+    Newton's method (maximum likelihood with a prior worth one estimate pulling towards the
+    identity a = 1, b = 0, which keeps a few estimates from a runaway fit; a kept > 0 so that
+    the map stays monotone)."""
+    p = np.asarray(p, float)
+    y = np.asarray(success, float)
+    ok = np.isfinite(p)
+    p, y = np.clip(p[ok], 1e-6, 1 - 1e-6), y[ok]
+    if len(p) < 10 or y.min() == y.max():
+        raise ValueError(f"calibration needs at least 10 chosen estimates of both outcomes, got {len(p)} "
+                         f"({int(y.sum())} right)")
+    X = np.column_stack([np.log(p) - np.log1p(-p), np.ones(len(p))])
+    w0 = np.array([1.0, 0.0])
+    w = w0.copy()
+    for _ in range(iterations):
+        q = 1.0 / (1.0 + np.exp(-np.clip(X @ w, -40, 40)))
+        H = X.T @ (X * (q * (1 - q))[:, None]) + np.eye(2)
+        step = np.linalg.solve(H, X.T @ (y - q) - (w - w0))
+        w = w + step
+        if np.abs(step).max() < 1e-10:
+            break
+    return float(max(w[0], 1e-3)), float(w[1])
 
 
 def choose_threshold(p: np.ndarray, gross: np.ndarray, n_scenes: int, max_gross: float,

@@ -177,3 +177,22 @@ def test_inflation_only_keeps_the_model_and_refits_its_covariance_inflation(fold
     for bad in (["--inflation-only"], [str(folder), "--inflation-only", "--threshold-only"],
                 [str(tmp_path / "missing"), "--inflation-only"]):
         assert main(["fit-confidence", *bad, "--out", str(out)]) == 2, bad
+
+
+def test_calibration_only_keeps_the_model_and_fits_the_published_map(folder, tmp_path, capsys):
+    """The map from the model's probability to the published confidence, fit on the chosen
+    estimates (both models): nothing else of the model moves, and it says what it did."""
+    out = tmp_path / "model.json"
+    out.write_text(confidence.MODEL_PATH.read_text())
+    kept = ProbabilityModel.from_json(out.read_text())
+    assert main(["fit-confidence", str(folder), "--calibration-only", "--out", str(out)]) == 0
+    model = ProbabilityModel.from_json(out.read_text())
+    np.testing.assert_array_equal(model.coef, kept.coef)
+    assert (model.threshold, model.inflation) == (kept.threshold, kept.inflation)
+    for mine in (model, model.without_heading):
+        a, b = mine.calibration
+        assert a > 0 and np.isfinite(b) and mine.meta["calibration_choice"].startswith(f"a {a:.4f}, b {b:.4f}: ")
+    printed = capsys.readouterr().out
+    assert "expected calibration error" in printed and printed.count("16 chosen estimates") == 2
+    for bad in (["--calibration-only"], [str(folder), "--calibration-only", "--inflation-only"]):
+        assert main(["fit-confidence", *bad, "--out", str(out)]) == 2, bad

@@ -122,6 +122,76 @@ def test_eval_reports_coverage_gross_rate_calibration_and_risk_coverage():
     curve = {x["coverage"]: x for x in rep["risk_coverage"]}
     assert set(curve) == {0.5, 0.6, 0.7, 0.8}      # 4 candidates among 5 scenes: up to 0.8
     assert curve[0.6]["gross_rate"] == pytest.approx(1 / 3) and curve[0.8]["gross_rate"] == pytest.approx(0.5)
+    # reliability over the four rated candidates: bins 0.2 (0 right), 0.7 (0), 0.8 (1), 0.9 (1)
+    rel = rep["reliability"]
+    assert [b["n"] for b in rel["bins"]] == [1, 1, 1, 1]
+    assert rel["ece"] == pytest.approx((0.2 + 0.7 + 0.2 + 0.1) / 4)
+    assert rel["brier"] == pytest.approx((0.2 ** 2 + 0.7 ** 2 + 0.2 ** 2 + 0.1 ** 2) / 4)
+
+
+def _calibrated(a: float = 1.1, b: float = 1.6):
+    from dataclasses import replace
+
+    from mmatch.ego.confidence import load_model
+    return replace(load_model(), calibration=(a, b))
+
+
+def test_published_confidence_is_a_monotone_map_of_the_models_probability():
+    from mmatch.ego.confidence import ProbabilityModel
+    from mmatch.errors import ConfigError
+    model = _calibrated()
+    p = np.linspace(0.0, 1.0, 101)
+    q = model.published(p)
+    assert q[0] == 0.0 and q[-1] == 1.0 and np.all(np.diff(q) > 0)      # order and the ends kept
+    assert np.all(q[1:-1] > p[1:-1])                                     # b > 0: surer than the raw model
+    assert model.published(0.5) == pytest.approx(1 / (1 + np.exp(-1.6)))
+    np.testing.assert_allclose([model.raw(x) for x in q[1:-1]], p[1:-1], atol=1e-9)
+    assert model.raw(0.0) == 0.0 and model.raw(1.0) == 1.0
+    again = ProbabilityModel.from_json(model.to_json())
+    assert again.calibration == pytest.approx(model.calibration)
+    assert _calibrated().published(0.3) == again.published(0.3)
+    import json
+    d = json.loads(model.to_json())
+    for bad in ({"a": 0.0, "b": 1.0}, {"a": 1.0, "b": float("nan")}, {"a": 1.0}):
+        d["calibration"] = bad
+        with pytest.raises(ConfigError, match="calibration|not a confidence model"):
+            ProbabilityModel.from_dict(d, "m.json")
+
+
+@pytest.mark.parametrize("raw, configured, status", [
+    (0.45, None, "fused"),          # the fitted threshold (0.42) reads the raw probability
+    (0.40, None, "no-estimate"),
+    (0.45, "above", "no-estimate"),  # a configured threshold is in published units
+    (0.55, "above", "fused"),
+])
+def test_a_frame_is_published_with_the_calibrated_confidence_and_gated_as_before(monkeypatch, tmp_path, raw,
+                                                                                   configured, status):
+    from mmatch.ego import confidence
+    from mmatch.ego.base import velocity_heading_yaws
+    from mmatch.ego.confidence import Assessment, ConfidenceConfig
+    from mmatch.fusion import FusionConfig, Fuser
+    from mmatch.label_frames import shared_from_labels
+    model = _calibrated()
+    path = tmp_path / "calibrated.json"
+    path.write_text(model.to_json())
+    thr = float(model.published(0.5)) if configured else None        # published 0.5 of the raw model
+    cfg = ConfidenceConfig(model_path=str(path), threshold=thr)
+    assert confidence.threshold(cfg) == pytest.approx(0.5 if configured else model.threshold)
+    scene = scene_from_world(CASES["one co-visible vehicle"](), 0, "nominal", name="one")
+    fuser = Fuser(FusionConfig(confidence=cfg))
+
+    def arbitrate(own, other, match, aligned):
+        a = Assessment(raw, np.eye(3) * 0.01, 0.0, "poor fit",
+                       dict.fromkeys(FEATURES, 0.0) | {"n_pairs": 3.0, "sighting": 1.0, "margin": 1.0})
+        return aligned.T, a, [(aligned.T, a)], np.zeros((0, 2), np.int32)
+
+    monkeypatch.setattr(fuser, "_arbitrate", arbitrate)
+    own, other = shared_from_labels(scene.ego, "ego"), shared_from_labels(scene.cav, "cav")
+    assert velocity_heading_yaws(own, other) is not None               # the first model's frame pair
+    res = fuser.fuse(own, other)
+    assert res.status == status, res.reason
+    assert res.confidence == pytest.approx(model.published(raw)) and res.confidence > raw
+    assert res.candidates[0][1].confidence == raw                     # the arbiter's own stays raw
 
 
 def _seen_from(sender: str, at: np.ndarray, v_radar: np.ndarray, v_target: np.ndarray,
@@ -322,7 +392,10 @@ def test_rmnet_evidence_is_higher_at_the_truth_than_at_a_slide(hard_dir):
 
 def test_the_chooser_picks_among_candidates_and_the_average_rates_the_choice(hard_dir):
     """The arbiter picks the candidate the packaged model's chooser prefers, and the published
-    confidence is that candidate's mean of the regression's and the trees' probabilities."""
+    confidence is that candidate's mean of the regression's and the trees' probabilities, as the
+    model's calibration publishes it."""
+    from mmatch.ego.base import velocity_heading_yaws
+    from mmatch.ego.confidence import published_confidence
     from mmatch.evaluate import prepare_scene
     from mmatch.fusion import Fuser, FusionConfig
     from mmatch.scene_io import load_scene
@@ -339,6 +412,24 @@ def test_the_chooser_picks_among_candidates_and_the_average_rates_the_choice(har
         k = int(np.argmax(choice))
         T = res.T_ego_cav if res.T_ego_cav is not None else res.refused_T
         np.testing.assert_allclose(T, res.candidates[k][0])
-        assert res.confidence == pytest.approx(conf[k]) and np.all((conf >= 0) & (conf <= 1))
+        heading = velocity_heading_yaws(own, received) is not None
+        assert res.confidence == pytest.approx(published_confidence(conf[k], heading=heading))
+        assert res.confidence > conf[k] and np.all((conf >= 0) & (conf <= 1))
         differ += int(not np.allclose(choice, conf))
     assert differ >= 1
+
+
+def test_fit_calibration_recovers_the_map_and_reliability_measures_it():
+    from mmatch.ego.confidence_fit import fit_calibration
+    from mmatch.metrics import reliability
+    rng = np.random.default_rng(3)
+    p = rng.uniform(0.02, 0.98, 20000)
+    z = 1.2 * np.log(p / (1 - p)) + 1.5
+    y = rng.random(len(p)) < 1 / (1 + np.exp(-z))
+    a, b = fit_calibration(p, y)
+    assert a == pytest.approx(1.2, abs=0.08) and b == pytest.approx(1.5, abs=0.08)
+    before, after = reliability(p, y), reliability(_calibrated(a, b).published(p), y)
+    assert before["ece"] > 0.15 and after["ece"] < 0.02 and after["brier"] < before["brier"]
+    assert sum(x["n"] for x in after["bins"]) == len(p)
+    with pytest.raises(ValueError, match="both outcomes"):
+        fit_calibration(p[:100], np.ones(100, bool))
