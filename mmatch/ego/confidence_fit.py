@@ -78,13 +78,21 @@ def fit_calibration(p: np.ndarray, success: np.ndarray, iterations: int = 50) ->
                          f"({int(y.sum())} right)")
     X = np.column_stack([np.log(p) - np.log1p(-p), np.ones(len(p))])
     w0 = np.array([1.0, 0.0])
+
+    def loss(w: np.ndarray) -> float:                    # negative log-likelihood plus the prior
+        z = X @ w
+        return float(np.sum(np.logaddexp(0.0, z) - y * z) + 0.5 * np.sum((w - w0) ** 2))
+
     w = w0.copy()
     for _ in range(iterations):
         q = 1.0 / (1.0 + np.exp(-np.clip(X @ w, -40, 40)))
         H = X.T @ (X * (q * (1 - q))[:, None]) + np.eye(2)
         step = np.linalg.solve(H, X.T @ (y - q) - (w - w0))
-        w = w + step
-        if np.abs(step).max() < 1e-10:
+        before, t = loss(w), 1.0
+        while loss(w + t * step) > before and t > 1e-6:  # damped: Newton alone can overshoot
+            t /= 2
+        w = w + t * step
+        if np.abs(t * step).max() < 1e-10:
             break
     return float(max(w[0], 1e-3)), float(w[1])
 

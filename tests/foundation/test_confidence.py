@@ -433,3 +433,8 @@ def test_fit_calibration_recovers_the_map_and_reliability_measures_it():
     assert sum(x["n"] for x in after["bins"]) == len(p)
     with pytest.raises(ValueError, match="both outcomes"):
         fit_calibration(p[:100], np.ones(100, bool))
+    # confidences at the very ends (a tracker's 0 and 1) with mixed outcomes: a finite, damped fit
+    ends = np.r_[np.zeros(70), np.ones(4000), rng.uniform(0.3, 0.7, 200)]
+    right = np.r_[rng.random(70) < 0.67, np.ones(4000, bool), rng.random(200) < 0.8]
+    a, b = fit_calibration(ends, right)
+    assert 0 < a < 1 and 0 < b < 5
