@@ -162,7 +162,7 @@ class EgoSection:
                                        doc="an estimate less sure than this (its published confidence: P within "
                                            "2 m / 5 deg) is published as 'no estimate'; -1: the defaults, chosen "
                                            "on the wide physics family with a harsher one in view (0.79 a single "
-                                           "frame, the model's 0.42 as published; 0.46 a tracked transform, the "
+                                           "frame, the model's 0.42 as published; 0.75 a tracked transform, the "
                                            "pose filter's belief)")
     max_links: int = _opt(8, lo=1, hi=256,
                           doc="every-CAV mode (cavs = []): at most this many CAVs at once; more are refused")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.track import TrackConfig, Tracker
@@ -255,3 +256,44 @@ def test_one_fusion_remembers_the_directions_of_travel_per_heading_prior_setting
         with without_heading_prior():
             assert velocity_heading_yaws(own, oth) is None
         np.testing.assert_array_equal(velocity_heading_yaws(own, oth), first)
+
+
+def test_the_pose_filter_weighs_the_chosen_estimate_at_its_published_confidence(monkeypatch):
+    """The frame's chosen estimate enters the pose filter as a single frame would publish it (the
+    model's calibration), the candidates not chosen at the model's own probability; one
+    unconfirmed pair below the single-pair threshold, which a frame refuses whatever its
+    probability, at its own too."""
+    from mmatch.ego.confidence import FEATURES, Assessment, published_confidence
+    w = World()
+    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0)))
+
+    def assessment(p: float, n_pairs: float, sighting: float) -> Assessment:
+        return Assessment(p, np.eye(3) * 0.01, 0.0, "poor fit",
+                          dict.fromkeys(FEATURES, 0.0) | {"n_pairs": n_pairs, "sighting": sighting, "margin": 1.0})
+
+    assert fuser._measured_confidence(assessment(0.45, 2.0, 0.0), True) == published_confidence(0.45) > 0.6
+    assert fuser._measured_confidence(assessment(0.45, 1.0, 1.0), True) == published_confidence(0.45)
+    assert fuser._measured_confidence(assessment(0.45, 1.0, 0.0), True) == 0.45      # one unconfirmed pair
+    seen = []
+    commit = fuser.tracker.commit
+
+    def spy(own, other, pred, candidates, full_search, view=None):
+        seen.append(candidates)
+        return commit(own, other, pred, candidates, full_search, view)
+
+    monkeypatch.setattr(fuser.tracker, "commit", spy)
+    chosen = {}
+    arbitrate = fuser._arbitrate
+
+    def keep(own, other, match, aligned):
+        out = arbitrate(own, other, match, aligned)
+        chosen["a"], chosen["all"] = out[1], [a for _, a in out[2]]
+        return out
+
+    monkeypatch.setattr(fuser, "_arbitrate", keep)
+    own, oth = w.frame("ego", 4.97, True), w.frame("cav", 4.95, True)
+    fuser.fuse(own, oth)
+    ps = [c.p for c in seen[-1]]
+    k = next(i for i, a in enumerate(chosen["all"]) if a.confidence == chosen["a"].confidence)
+    assert ps[k] == pytest.approx(fuser._measured_confidence(chosen["a"], True)) and ps[k] > chosen["a"].confidence
+    assert [p for i, p in enumerate(ps) if i != k] == [a.confidence for i, a in enumerate(chosen["all"]) if i != k]
