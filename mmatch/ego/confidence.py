@@ -187,8 +187,9 @@ class ProbabilityModel:
     raw probability said 0.65 on average where 0.84 were right (wide hard seeds 100-104: at 0.42,
     the threshold, 0.79 of them). The map is monotone: the arbiter's choice, the ranking by
     confidence and every gate (thresholds stay in the model's raw units, a configured one is
-    mapped back, `threshold`) are unchanged; the tracker weighs the raw probabilities its
-    settings were chosen on."""
+    mapped back, `threshold`) are unchanged; the pose filter weighs a frame's chosen estimate at
+    its published confidence and the other candidates at this probability (fusion.py
+    `Fuser._measured_confidence`)."""
 
     features: tuple[str, ...]
     mean: np.ndarray
