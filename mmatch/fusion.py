@@ -209,7 +209,8 @@ class Fuser:
         match = replace(match, pairs=pairs)
         timings["confidence"] = (time.perf_counter() - t2) * 1e3
         if self.tracker.enabled:
-            return self._tracked(own, other, pred, cands, match, timings, predicted is None, a.reason, (T, a))
+            return self._tracked(own, other, pred, cands, match, timings, predicted is None, a.reason, (T, a),
+                                 heading)
         ccfg = self.config.confidence
         # published with the model's calibration; the gates read the raw probability (the same
         # decisions, ego/confidence.py `ProbabilityModel.published`)
@@ -249,15 +250,16 @@ class Fuser:
         return self.objects.step(own, views, yaw_rate)
 
     def _tracked(self, own: SharedFrame, other: SharedFrame, pred: Prediction, cands: list, match: MatchResult,
-                 timings: dict, full_search: bool, reason: str, chosen: tuple | None = None) -> FusionResult:
+                 timings: dict, full_search: bool, reason: str, chosen: tuple | None = None,
+                 heading: bool = True) -> FusionResult:
         """The pose filter's answer for this frame: every candidate the arbiter weighed is a
-        measurement (ego/track/filter.py); the best hypothesis is published when its confidence
-        reaches the threshold. Pairs: with a matcher that says `pairs_from_transform`, its
+        measurement (ego/track/filter.py; the chosen one, `chosen` (T, Assessment), as
+        `_measured_confidence` says, heading: the frame pair has a heading prior); the best
+        hypothesis is published when its confidence reaches the threshold. Pairs: with a matcher that says `pairs_from_transform`, its
         assignment under the published transform, as without tracking (30 drives of seed 500,
         default matcher: tracked pair F1 0.840 -> 0.856); otherwise the matcher's when its choice
         falls in that hypothesis, else the vehicles the hypothesis lays on each other."""
         t0 = time.perf_counter()
-        heading = chosen is not None and velocity_heading_yaws(own, other) is not None
         candidates = [Candidate(pose_of(Tc), ac.covariance, float(np.nan_to_num(
             self._measured_confidence(ac, heading) if chosen is not None and ac is chosen[1] else ac.confidence)))
             for Tc, ac in cands]
