@@ -244,11 +244,19 @@ def _changed(a: list[dict], b: list[dict]) -> int:
 
 
 def _summary(rep: dict) -> dict:
+    """What a check did to the figures and to how sure the output says it is: pair F1, success,
+    coverage (emitted at the default gate), gross_rate (among the emitted), gross_at_0.8 (the
+    risk-coverage curve at coverage 0.8) and calibration_error (expected calibration error of
+    the published confidences, evaluate.py `sureness_report`). A shift that leaves F1 alone may
+    still make the confidence lie: the gross rate among the emitted and the calibration error
+    say so."""
     p, r = rep["pair_precision"], rep["pair_recall"]
     at = {round(e["coverage"], 2): e for e in rep["risk_coverage"]}
     return {"scenes": rep["scenes"], "rejected": rep["rejected"],
             "pair_f1": 2 * p * r / (p + r) if p + r else 0.0, "success_rate": rep["success_rate"],
-            "coverage": rep["coverage"], "gross_at_0.8": at.get(0.8, {}).get("gross_rate")}
+            "coverage": rep["coverage"], "gross_rate": rep["gross_rate"],
+            "gross_at_0.8": at.get(0.8, {}).get("gross_rate"),
+            "calibration_error": rep["reliability"]["ece"]}
 
 
 def run_transfer(folder: str | Path, checks: list[str], cfg: EvalConfig = EvalConfig(), jobs: int = 1,
@@ -306,11 +314,14 @@ class _Serial:
 
 def markdown(result: dict) -> str:
     """The README table: per check, pair F1 and success with the pipeline and with perfect
-    separation, the change from the unchanged scenes, for invariances whether they hold, and
-    the cameras' depth scales the check's scenes calibrated to."""
+    separation, the change from the unchanged scenes, how sure the pipeline's output stays
+    (coverage, gross among the emitted, calibration error of its confidence), for invariances
+    whether they hold, and the cameras' depth scales the check's scenes calibrated to."""
     ref = result["checks"][NONE]
     rows = ["| check | kind | pipeline F1 / success | labels F1 / success | pipeline F1 change (points) | "
-            "scenes changed (pipeline / labels) | depth scale (Ego / CAV) |", "| --- | --- | --- | --- | --- | --- | --- |"]
+            "pipeline coverage / gross among emitted / calibration error | "
+            "scenes changed (pipeline / labels) | depth scale (Ego / CAV) |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for name, e in result["checks"].items():
         p, lab = e["pipeline"], e["labels"]
         delta = 100 * (p["pair_f1"] - ref["pipeline"]["pair_f1"])
@@ -319,8 +330,16 @@ def markdown(result: dict) -> str:
             changed += " (holds)" if p["changed_scenes"] == lab["changed_scenes"] == 0 else " (BROKEN)"
         scale = " / ".join(f"{x:.3f}" + (" (axis)" if a else "")
                            for x, a in zip(e.get("depth_scale", (1.0, 1.0)), e.get("depth_along_axis", (False, False))))
-        rows.append(f"| {name} | {e['kind']} | {_figures(p)} | {_figures(lab)} | {delta:+.1f} | {changed} | {scale} |")
+        rows.append(f"| {name} | {e['kind']} | {_figures(p)} | {_figures(lab)} | {delta:+.1f} | {_sureness(p)} | "
+                    f"{changed} | {scale} |")
     return "\n".join(rows)
+
+
+def _sureness(summary: dict) -> str:
+    """ "coverage / gross among emitted / calibration error", or "-" without a scene."""
+    if not summary["scenes"]:
+        return "-"
+    return f"{summary['coverage']:.2f} / {summary['gross_rate']:.3f} / {summary['calibration_error']:.3f}"
 
 
 def _figures(summary: dict) -> str:

@@ -12,7 +12,7 @@ from mmatch.errors import ConfigError
 from mmatch.scene_io import load_scene
 from mmatch.shared import SharedFrame, with_canonical_background
 from mmatch.sim.generate import generate
-from mmatch.transfer import CHECKS, parse_checks, perturb, run_transfer
+from mmatch.transfer import CHECKS, markdown, parse_checks, perturb, run_transfer
 
 
 @pytest.fixture(scope="module")
@@ -89,9 +89,28 @@ def test_invariances_hold_and_shifts_are_measured(hard_dir, tmp_path):
         e = out["checks"][name]
         assert e["kind"] == "invariance"
         assert e["pipeline"]["changed_scenes"] == 0 and e["labels"]["changed_scenes"] == 0, (name, e)
-        assert e["pipeline"] == dict(out["checks"]["none"]["pipeline"], changed_scenes=0)
+        # the same figures (a confidence may move in its last bits: the calibration error is a sum)
+        assert e["pipeline"] == pytest.approx(dict(out["checks"]["none"]["pipeline"], changed_scenes=0), rel=1e-9)
     half = out["checks"]["half-points"]["pipeline"]
     assert half["changed_scenes"] > 0 and 0 <= half["pair_f1"] <= 1 and 0 <= half["success_rate"] <= 1
+    assert 0 <= half["gross_rate"] <= 1 and 0 <= half["calibration_error"] <= 1
+
+
+def test_the_table_says_how_sure_each_check_leaves_the_output():
+    """A shift can leave pair F1 alone and still make the confidence lie: the table carries the
+    pipeline's coverage, gross rate among the emitted and calibration error beside F1."""
+    def block(f1: float, cov: float, gross: float, ece: float) -> dict:
+        return {"scenes": 10, "rejected": 0, "pair_f1": f1, "success_rate": 0.5, "coverage": cov,
+                "gross_rate": gross, "gross_at_0.8": 0.1, "calibration_error": ece, "changed_scenes": 3}
+    result = {"scenes": 10, "checks": {
+        "none": {"kind": "reference", "pipeline": block(0.9, 0.8, 0.0, 0.05), "labels": block(0.95, 0.8, 0.0, 0.04)},
+        "half-points": {"kind": "shift", "pipeline": block(0.88, 0.7, 0.125, 0.2),
+                        "labels": dict(block(0.9, 0.7, 0.0, 0.1), scenes=0)}}}
+    rows = markdown(result).splitlines()
+    assert "gross among emitted / calibration error" in rows[0] and rows[1].count("---") == 8
+    half = rows[3].split(" | ")
+    assert half[4] == "-2.0" and half[5] == "0.70 / 0.125 / 0.200" and half[2] == "0.880 / 0.500"
+    assert half[3] == "-"                                   # perfect separation ran on no scene
 
 
 def test_invariances_hold_on_wide_hard_scenes(wide_hard_dir):
