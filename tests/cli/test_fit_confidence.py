@@ -4,6 +4,7 @@ packaged model is stale (its features from before an evidence change)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -62,10 +63,15 @@ def test_fits_a_model_of_todays_evidence(folder, tmp_path, capsys):
         (x - model.mean) / model.scale)))
 
 
-def test_trees_only_keeps_the_regressions_and_no_trees_leaves_them_out(folder, tmp_path):
+def _packaged_copy(tmp_path: Path) -> tuple[Path, ProbabilityModel]:
+    """A copy of the packaged model file for a `--*-only` refit to rewrite, and what it holds."""
     out = tmp_path / "model.json"
-    kept = ProbabilityModel.from_json(confidence.MODEL_PATH.read_text())
     out.write_text(confidence.MODEL_PATH.read_text())
+    return out, ProbabilityModel.from_json(out.read_text())
+
+
+def test_trees_only_keeps_the_regressions_and_no_trees_leaves_them_out(folder, tmp_path):
+    out, kept = _packaged_copy(tmp_path)
     assert main(["fit-confidence", str(folder), "--trees-only", "--out", str(out)]) == 0
     model = ProbabilityModel.from_json(out.read_text())
     np.testing.assert_array_equal(model.coef, kept.coef)
@@ -135,9 +141,7 @@ def test_a_stale_packaged_model_does_not_stop_the_fit(folder, tmp_path, stale_pa
 
 
 def test_threshold_only_keeps_the_model_and_chooses_its_threshold_on_tuning_families(folder, tmp_path, capsys):
-    out = tmp_path / "model.json"
-    out.write_text(confidence.MODEL_PATH.read_text())
-    kept = ProbabilityModel.from_json(out.read_text())
+    out, kept = _packaged_copy(tmp_path)
     assert main(["fit-confidence", "--threshold-only", "--threshold-on", f"{folder},{folder}",
                  "--threshold-on", str(folder), "--threshold-max-gross", "0.2", "--out", str(out)]) == 0
     model = ProbabilityModel.from_json(out.read_text())
@@ -155,9 +159,7 @@ def test_inflation_only_keeps_the_model_and_refits_its_covariance_inflation(fold
     """The factor that makes the 95 % ellipse of the published estimates hold the truth for 95 %
     of the successful ones: refit under the refit inflation, it stays (1 within the quantile's
     step), and nothing else of the model moves."""
-    out = tmp_path / "model.json"
-    out.write_text(confidence.MODEL_PATH.read_text())
-    kept = ProbabilityModel.from_json(out.read_text())
+    out, kept = _packaged_copy(tmp_path)
     assert main(["fit-confidence", str(folder), "--inflation-only", "--out", str(out)]) == 0
     model = ProbabilityModel.from_json(out.read_text())
     np.testing.assert_array_equal(model.coef, kept.coef)
@@ -182,9 +184,7 @@ def test_inflation_only_keeps_the_model_and_refits_its_covariance_inflation(fold
 def test_calibration_only_keeps_the_model_and_fits_the_published_map(folder, tmp_path, capsys):
     """The map from the model's probability to the published confidence, fit on the chosen
     estimates (both models): nothing else of the model moves, and it says what it did."""
-    out = tmp_path / "model.json"
-    out.write_text(confidence.MODEL_PATH.read_text())
-    kept = ProbabilityModel.from_json(out.read_text())
+    out, kept = _packaged_copy(tmp_path)
     assert main(["fit-confidence", str(folder), "--calibration-only", "--out", str(out)]) == 0
     model = ProbabilityModel.from_json(out.read_text())
     np.testing.assert_array_equal(model.coef, kept.coef)
