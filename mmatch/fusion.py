@@ -12,7 +12,8 @@ import numpy as np
 from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres,
                              velocity_heading_yaws, without_heading_prior)
 from mmatch.ego.confidence import (Assessment, ConfidenceConfig, PairContext, assess_many, published_confidence,
-                                   refusal, shared_view, threshold, vehicle_distances, with_information)
+                                   refusal, shared_view, single_pair_unconfirmed, threshold, vehicle_distances,
+                                   with_information)
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import near_transforms, rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
@@ -302,7 +303,7 @@ class Fuser:
         threshold 0.75 the tracker's tuning drives (seeds 400, 450, 460) went from success 0.757
         with 13 gross frames of 5400 to 0.809 with 6 (README, "Over time")."""
         ccfg = self.config.confidence
-        if refusal(a.confidence, a.features, 1e-9, ccfg) == "too few vehicles":
+        if single_pair_unconfirmed(a.confidence, a.features, ccfg):
             return a.confidence
         return published_confidence(a.confidence, ccfg, heading)
 

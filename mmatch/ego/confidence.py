@@ -875,10 +875,17 @@ def refusal(confidence: float, features: dict, thr: float, cfg: ConfidenceConfig
         return "threshold"
     if cfg.min_margin is not None and features.get("margin", 1.0) < cfg.min_margin:
         return "ambiguous"
-    if features.get("n_pairs", 2.0) <= 1 and features.get("sighting", 1.0) <= 0 \
-            and confidence < cfg.single_pair_threshold:
+    if single_pair_unconfirmed(confidence, features, cfg):
         return "too few vehicles"
     return None
+
+
+def single_pair_unconfirmed(confidence: float, features: dict, cfg: ConfidenceConfig = ConfidenceConfig()) -> bool:
+    """Whether an estimate of this raw probability rests on at most one vehicle pair that neither
+    vehicle's sighting of the other confirms (sighting <= 0), below `cfg.single_pair_threshold`:
+    a single frame refuses it as "too few vehicles" whatever its other gates say."""
+    return features.get("n_pairs", 2.0) <= 1 and features.get("sighting", 1.0) <= 0 \
+        and confidence < cfg.single_pair_threshold
 
 
 def threshold(cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True, tracked: bool = False) -> float:
