@@ -11,7 +11,9 @@ and evaluates them again, with the pipeline and with perfect separation (`--cav 
   is a bug: the first of these found RM-net reading box heights as if every camera had a
   1000 px focal length.
 - shifts beyond the physics family, whose cost is measured: detection scores x 0.6, monocular
-  depth x 0.85 and x 1.15, SNR +10 dB and -6 dB, no elevation (z = 0), half the returns.
+  depth x 0.85 and x 1.15, SNR +10 dB and -6 dB, no elevation (z = 0), half the returns,
+  appearance descriptors that say less (half of each histogram replaced by a random one) or
+  one camera's hues off the other's by a histogram bin.
 
 Each check is seeded per scene from the file name, so a run is repeatable.
 """
@@ -83,6 +85,35 @@ def _double_points(view: View, rng: np.random.Generator) -> View:
     return replace(view, points=np.concatenate([p, copy]).astype(np.float32), point_labels=labels)
 
 
+HUE_BINS = 16              # the descriptor's hue histogram: its first 16 entries (DESIGN.md)
+DESCRIPTOR_GROUPS = ((0, 16), (16, 24), (24, 32))
+
+
+def _descriptor_noise(share: float) -> Callable[[View, np.random.Generator], View]:
+    """Each H, S and V histogram of every descriptor mixed with a random one (flat Dirichlet
+    draw) at `share`: a camera or a detector whose boxes say less about a vehicle's colour."""
+    def apply(view: View, rng: np.random.Generator) -> View:
+        f = np.array(view.features, np.float64)
+        for lo, hi in DESCRIPTOR_GROUPS:
+            mass = f[:, lo:hi].sum(axis=1, keepdims=True)
+            f[:, lo:hi] = (1 - share) * f[:, lo:hi] + share * mass * rng.dirichlet(np.ones(hi - lo), len(f))
+        return replace(view, features=f.astype(np.float32))
+    return apply
+
+
+def _hue_shift(bins: float) -> Callable[[View, np.random.Generator], View]:
+    """The hue histogram turned by `bins` bins (a fraction spreads each bin over two): a camera
+    whose colour response is off by bins x 180 / 16 OpenCV hue units."""
+    k, w = int(np.floor(bins)), bins - np.floor(bins)
+
+    def apply(view: View, rng: np.random.Generator) -> View:
+        f = np.array(view.features, np.float32)
+        h = f[:, :HUE_BINS].copy()
+        f[:, :HUE_BINS] = (1 - w) * np.roll(h, k, axis=1) + w * np.roll(h, k + 1, axis=1)
+        return replace(view, features=f)
+    return apply
+
+
 def _box_column(col: int, factor: float) -> Callable[[View, np.random.Generator], View]:
     def apply(view: View, rng: np.random.Generator) -> View:
         boxes = np.array(view.boxes, np.float32)
@@ -136,6 +167,7 @@ class Check:
     description: str
     apply: Callable[[View, np.random.Generator], View] | None = None
     box_order: Callable[[View, np.random.Generator], np.ndarray] | None = None
+    ego_only: bool = False          # `apply` rewrites the Ego's view only (one camera unlike the other)
 
 
 CHECKS: dict[str, Check] = {c.name: c for c in (
@@ -163,6 +195,10 @@ CHECKS: dict[str, Check] = {c.name: c for c in (
           _double_points),
     Check("azimuth+1.5deg", "shift", "1.5 deg more azimuth noise on every return (an array beyond the family)",
           _azimuth_noise(1.5)),
+    Check("descriptor-noise", "shift", "half of each descriptor histogram replaced by a random one (less appearance)",
+          _descriptor_noise(0.5)),
+    Check("hue+1bin", "shift", "the Ego camera's hues 11.25 OpenCV units off the CAV's (twice the family's spread)",
+          _hue_shift(1.0), ego_only=True),
 )}
 NONE = "none"
 
@@ -178,7 +214,7 @@ def _perturbed(scene: Scene, check: Check) -> tuple[Scene, tuple[np.ndarray, np.
     rng = np.random.default_rng(zlib.crc32(f"{scene.name}/{check.name}".encode()))
     if check.box_order is None:
         orders = (np.arange(len(scene.ego.boxes)), np.arange(len(scene.cav.boxes)))
-        views = check.apply(scene.ego, rng), check.apply(scene.cav, rng)
+        views = check.apply(scene.ego, rng), scene.cav if check.ego_only else check.apply(scene.cav, rng)
         return replace(scene, ego=views[0], cav=views[1]), orders
     orders = (check.box_order(scene.ego, rng), check.box_order(scene.cav, rng))
     new_of = [np.argsort(o) for o in orders]                       # original index -> new index

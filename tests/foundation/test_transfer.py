@@ -67,6 +67,18 @@ def test_each_check_rewrites_both_views_as_described(hard_dir):
     np.testing.assert_array_equal(noisy[:, 2:], s.ego.points[:, 2:])
     np.testing.assert_allclose(perturb(s, CHECKS["snr-6"]).ego.points[:, 4], s.ego.points[:, 4] - 6, atol=1e-5)
     assert not perturb(s, CHECKS["no-elevation"]).cav.points[:, 2].any()
+    vague = perturb(s, CHECKS["descriptor-noise"])
+    for view, orig in ((vague.ego, s.ego), (vague.cav, s.cav)):
+        for lo, hi in ((0, 16), (16, 24), (24, 32)):      # each histogram keeps its mass, half of it redrawn
+            np.testing.assert_allclose(view.features[:, lo:hi].sum(axis=1), orig.features[:, lo:hi].sum(axis=1),
+                                       rtol=1e-5)
+        moved_mass = np.abs(view.features - orig.features).sum(axis=1) / np.abs(orig.features).sum(axis=1)
+        assert np.all(moved_mass > 0.05) and np.all(moved_mass < 1.0)
+        assert view.features.min() >= 0
+    hue = perturb(s, CHECKS["hue+1bin"])
+    np.testing.assert_allclose(hue.ego.features[:, :16], np.roll(s.ego.features[:, :16], 1, axis=1))
+    np.testing.assert_array_equal(hue.ego.features[:, 16:], s.ego.features[:, 16:])
+    np.testing.assert_array_equal(hue.cav.features, s.cav.features)       # one camera unlike the other
     # repeatable, and the scene itself untouched
     np.testing.assert_array_equal(perturb(s, CHECKS["half-points"]).cav.points, half.cav.points)
     for k, v in before.items():
