@@ -38,6 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=3, help="message-passing steps")
     p.add_argument("--jobs", type=int, default=2, help="simulation worker processes")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest on these small graphs)")
+    p.add_argument("--appearance-augment", type=float, default=TrainRequest.appearance_augment,
+                   help="probability of each appearance rewrite of a training graph: descriptors mixed with "
+                        "random histograms, one view's hues turned (mmatch/train/augment.py)")
     p.add_argument("--samples", default=None, help="reuse (or write) the simulated samples in this .npz")
 
 

@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
+from mmatch.train.augment import AppearanceAugment, augment
 from mmatch.train.data import Sample
 from mmatch.train.model import RMNet, weighted_bce
 
@@ -35,6 +36,7 @@ class FitConfig:
     top_k: int = 3               # partners per vehicle the matcher keeps (for the top-k recall figure)
     seed: int = 0
     threads: int = 1             # more threads are 30x slower on these small graphs (2 shared cores)
+    augment: AppearanceAugment = AppearanceAugment()   # appearance rewrites of training graphs (augment.py)
 
 
 @dataclass
@@ -139,6 +141,7 @@ def fit(train: list[Sample], val: list[Sample], cfg: FitConfig = FitConfig(),
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed)
+    aug_rng = np.random.default_rng(cfg.seed + 1)
     net = RMNet(steps=cfg.steps)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs, eta_min=cfg.lr * 0.05)
@@ -152,7 +155,7 @@ def fit(train: list[Sample], val: list[Sample], cfg: FitConfig = FitConfig(),
         net.train()
         total = 0.0
         for k, idx in enumerate(_batches(sizes, cfg.batch, rng)):
-            b = collate([pool[i] for i in idx])
+            b = collate([augment(pool[i], cfg.augment, aug_rng) for i in idx])
             mask = b["ma"].unsqueeze(2) * b["mb"].unsqueeze(1)
             loss = weighted_bce(_forward(net, b), b["target"], mask)
             opt.zero_grad()

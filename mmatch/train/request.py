@@ -26,6 +26,7 @@ class TrainRequest:
     jobs: int = 2
     threads: int = 1
     samples: str | None = None
+    appearance_augment: float = 0.0    # probability of each appearance rewrite of a training graph (augment.py)
 
     @classmethod
     def from_args(cls, args) -> TrainRequest:
@@ -38,6 +39,8 @@ class TrainRequest:
             raise ConfigError(f"scenes: {self.scenes} is too few (at least 4)")
         if not 0 < self.val_share < 1:
             raise ConfigError(f"val_share: {self.val_share} must lie between 0 and 1")
+        if not 0 <= self.appearance_augment <= 1:
+            raise ConfigError(f"appearance_augment: {self.appearance_augment} must lie between 0 and 1")
         if self.epochs < 1 or self.steps < 1 or self.jobs < 1 or self.threads < 1 or self.patience < 1:
             raise ConfigError("epochs, patience, steps, jobs and threads must be at least 1")
         parse_range(self.dense_vehicles, "dense_vehicles")

@@ -13,6 +13,7 @@ import torch
 
 from mmatch.errors import ConfigError
 from mmatch.train.request import TrainRequest, parse_range
+from mmatch.train.augment import AppearanceAugment
 from mmatch.train.data import Sample, load_samples, save_samples, simulate_samples, synthetic_samples
 from mmatch.train.export import agreement, export_onnx
 from mmatch.train.figures import epoch_figure
@@ -79,7 +80,7 @@ def train(req: TrainRequest) -> dict:
         raise ConfigError(f"scenes: only {len(samples)} usable frame pairs (2+ vehicles a view); simulate more")
     tr, val = split(samples, req.val_share, req.train_seed)
     cfg = FitConfig(epochs=req.epochs, patience=req.patience, steps=req.steps, seed=req.train_seed,
-                    threads=req.threads)
+                    threads=req.threads, augment=AppearanceAugment(p=req.appearance_augment))
 
     def on_epoch(st, history):
         epoch_figure(out / "figures" / f"epoch_{st.epoch:03d}.png", history, cfg.epochs)
@@ -108,6 +109,7 @@ def train(req: TrainRequest) -> dict:
                  "frame_pairs": len(samples), "train": len(tr), "validation": len(val),
                  "cav_side": "the real CAV-side pipeline (mmatch.cav.process) on both views"},
         "training": {"seed": req.train_seed, "epochs_run": len(history), "best_epoch": best.epoch,
+                     "appearance_augment": asdict(cfg.augment),
                      "torch": torch.__version__, "threads": req.threads,
                      "data_seconds": round(t_data, 1), "samples_reused": reused,
                  "total_seconds": round(time.perf_counter() - t_start, 1)},
@@ -117,6 +119,13 @@ def train(req: TrainRequest) -> dict:
     }
     write_card(export.with_suffix(".md"), card)
     return card
+
+
+def _augment_line(a: dict | None) -> str:
+    if not a or not a.get("p"):
+        return "no appearance augmentation;"
+    return (f"appearance augmentation (mmatch/train/augment.py): with probability {a['p']} each, descriptors mixed "
+            f"with random histograms up to {a['max_mix']} and one view's hues turned up to {a['max_hue_bins']} bins;")
 
 
 def write_card(path: Path, card: dict) -> None:
@@ -136,6 +145,7 @@ mmatch/train/model.py). Written by `mmatch train`; inputs and shapes in mmatch/e
   each pair also seen from the other vehicle. Split by scene: {d['train']} training, {d['validation']} validation.
 - Training: weighted BCE over the steps (omega = #negative / #positive), AdamW, cosine schedule,
   seed {t['seed']}, early stopping on the validation loss: {t['epochs_run']} epochs run, best {t['best_epoch']};
+  {_augment_line(t.get('appearance_augment'))}
   torch {t['torch']}, {t['threads']} thread(s); {t['data_seconds']} s {'loading the saved samples' if t['samples_reused'] else 'simulating'}, {t['total_seconds']} s in all.
 - Validation (last step, mutual-best pairs above 0.5, no geometry): precision {v['precision']:.3f},
   recall {v['recall']:.3f}, F1 {v['f1']:.3f}; true partner within a vehicle's top 3: {v['top3_recall']:.3f}.

@@ -17,7 +17,7 @@ def test_smoke_training_and_export(tmp_path, capsys):
     model = tmp_path / "model" / "rmnet.onnx"
     rc = main(["train", "--out", str(out), "--export", str(model), "--scenes", "24", "--epochs", "2",
                "--jobs", "1", "--threads", "1", "--seed", "4242", "--dense-scenes", "2",
-               "--dense-vehicles", "30-40", "--synthetic-scenes", "3"])
+               "--dense-vehicles", "30-40", "--synthetic-scenes", "3", "--appearance-augment", "0.5"])
     assert rc == 0
     assert "exported rmnet.onnx" in capsys.readouterr().out
     history = json.loads((out / "history.json").read_text())
@@ -26,9 +26,10 @@ def test_smoke_training_and_export(tmp_path, capsys):
     assert (out / "figures" / "epoch_000.png").stat().st_size > 1000
     card = (tmp_path / "model" / "rmnet.md").read_text()
     assert "simulation seed 4242" in card and "2 dense-traffic" in card and "3 synthetic dense" in card
-    assert "physics wide" in card
+    assert "physics wide" in card and "with probability 0.5 each, descriptors mixed" in card
     meta = json.loads(card.split("```json")[1].split("```")[0])
     assert meta["agreement_max_abs"] < 1e-4 and meta["data"]["scenes"] == 24
+    assert meta["training"]["appearance_augment"]["p"] == 0.5
 
     from mmatch.ego.match.graph import build_graph
     from mmatch.ego.match.rmnet_runtime import RMNetSession
@@ -41,3 +42,5 @@ def test_smoke_training_and_export(tmp_path, capsys):
 def test_bad_arguments_name_the_key(capsys):
     rc = main(["train", "--out", "/tmp/unused-rmnet", "--val-share", "1.5"])
     assert rc == 2 and "val_share" in capsys.readouterr().err
+    rc = main(["train", "--out", "/tmp/unused-rmnet", "--appearance-augment", "-0.1"])
+    assert rc == 2 and "appearance_augment" in capsys.readouterr().err
