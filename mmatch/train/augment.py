@@ -7,23 +7,23 @@ on one simulator's descriptors alone learns to trust them: on wide hard seed 1 w
 each histogram replaced by a random one (`mmatch transfer`, "descriptor-noise") the `rmnet`
 matcher's pair F1 fell 0.918 -> 0.766, the consensus search's without the network 0.904 -> 0.850.
 
-Each training graph is, with probability `p` each, (a) given descriptors whose H, S and V
-histograms are mixed with a random one (flat Dirichlet) at a share drawn up to `max_mix`, both
-views, and (b) given one view's hue histogram turned by up to `max_hue_bins` bins either way
-(a fraction spreads each bin over two). The node features hold each descriptor as its
+Each training graph of a batch is, with probability `p` each, (a) given descriptors whose H, S
+and V histograms are mixed with a random one (flat Dirichlet) at a share drawn up to `max_mix`,
+both views, and (b) given one view's hue histogram turned by up to `max_hue_bins` bins either
+way (a fraction spreads each bin over two). The node features hold each descriptor as its
 Hellinger embedding (graph.py columns 0-31: square roots, unit length per group), so the
 histograms are their squares; the embedding and the local edges' descriptor distance (edge
 column 9) are recomputed from the new histograms. Nothing else of a graph depends on appearance.
+The whole batch is rewritten at once, on the padded arrays of `data.collate_arrays`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from mmatch.ego.match.graph import DESC_GROUPS, hellinger_embedding
-from mmatch.train.data import Sample
+from mmatch.ego.match.graph import DESC_GROUPS
 
 HUE = DESC_GROUPS[0]
 DESC_DIM = DESC_GROUPS[-1][1]
@@ -37,53 +37,57 @@ class AppearanceAugment:
     max_hue_bins: float = 1.5   # one view's hue turn, drawn from U(-max, max) bins
 
 
-def _histograms(x: np.ndarray) -> np.ndarray:
-    return np.asarray(x[:, :DESC_DIM], np.float64) ** 2
+def _turned(h: np.ndarray, bins: np.ndarray) -> np.ndarray:
+    """Hue histograms h (B, V, 16) turned by bins (B,) each (fractions spread over two bins)."""
+    n = h.shape[-1]
+    k = np.floor(bins).astype(int)
+    w = (bins - k)[:, None, None]
+    idx = (np.arange(n)[None, :] - k[:, None]) % n                     # np.roll by k, per graph
+    rolled = np.take_along_axis(h, idx[:, None, :].repeat(h.shape[1], axis=1), axis=2)
+    rolled_next = np.roll(rolled, 1, axis=2)
+    return (1 - w) * rolled + w * rolled_next
 
 
-def _mixed(h: np.ndarray, share: float, rng: np.random.Generator) -> np.ndarray:
-    out = h.copy()
+def _rewrite_view(x: np.ndarray, e: np.ndarray, nbr: np.ndarray, node_mask: np.ndarray, edge_mask: np.ndarray,
+                  share: np.ndarray, bins: np.ndarray, rng: np.random.Generator) -> None:
+    """One view of a padded batch in place: x (B, V, F), e (B, V, K, Fe), nbr (B, V, K), masks
+    (B, V) and (B, V, K); share (B,) mixing shares, bins (B,) hue turns (0: none)."""
+    h = np.asarray(x[..., :DESC_DIM], np.float64) ** 2
+    s = share[:, None, None]
+    emb = np.zeros_like(h)
     for lo, hi in DESC_GROUPS:
-        out[:, lo:hi] = (1 - share) * h[:, lo:hi] + share * rng.dirichlet(np.ones(hi - lo), len(h))
-    return out
+        g = h[..., lo:hi]
+        if share.any():
+            draw = rng.standard_exponential(g.shape)
+            g = (1 - s) * g + s * draw / draw.sum(axis=-1, keepdims=True)
+        if (lo, hi) == HUE and bins.any():
+            g = _turned(g, bins)
+        emb[..., lo:hi] = np.sqrt(g) / np.maximum(np.linalg.norm(np.sqrt(g), axis=-1, keepdims=True), 1e-9)
+    emb *= node_mask[..., None]
+    x[..., :DESC_DIM] = emb
+    if e.shape[2]:
+        nb = emb[np.arange(len(emb))[:, None, None], nbr]                 # (B, V, K, 32)
+        bc = np.einsum("bvd,bvkd->bvk", emb, nb)
+        e[..., EDGE_DESC] = np.where(edge_mask > 0, np.sqrt(np.clip(1 - bc / len(DESC_GROUPS), 0, 1)),
+                                     e[..., EDGE_DESC])
 
 
-def _turned(h: np.ndarray, bins: float) -> np.ndarray:
-    k, w = int(np.floor(bins)), bins - np.floor(bins)
-    lo, hi = HUE
-    out = h.copy()
-    out[:, lo:hi] = (1 - w) * np.roll(h[:, lo:hi], k, axis=1) + w * np.roll(h[:, lo:hi], k + 1, axis=1)
-    return out
-
-
-def _view(x: np.ndarray, e: np.ndarray, nbr: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Node and edge features of one view with histograms h (V, 32) in place of its own."""
-    emb = hellinger_embedding(h)
-    x = x.copy()
-    x[:, :DESC_DIM] = emb
-    e = e.copy()
-    if e.shape[1]:
-        bc = np.einsum("vd,vkd->vk", emb, emb[nbr])
-        e[..., EDGE_DESC] = np.sqrt(np.clip(1 - bc / len(DESC_GROUPS), 0, 1))
-    return x.astype(np.float32), e.astype(np.float32)
-
-
-def augment(s: Sample, cfg: AppearanceAugment, rng: np.random.Generator) -> Sample:
-    """The sample with its appearance rewritten as the module docstring says (itself when neither applies)."""
-    mix = cfg.p > 0 and rng.random() < cfg.p
-    hue = cfg.p > 0 and rng.random() < cfg.p
-    if not (mix or hue):
-        return s
-    ha, hb = _histograms(s.xa), _histograms(s.xb)
-    if mix:
-        share = rng.uniform(0, cfg.max_mix)
-        ha, hb = _mixed(ha, share, rng), _mixed(hb, share, rng)
-    if hue:
-        bins = rng.uniform(-cfg.max_hue_bins, cfg.max_hue_bins)
-        if rng.random() < 0.5:
-            ha = _turned(ha, bins)
-        else:
-            hb = _turned(hb, bins)
-    xa, ea = _view(s.xa, s.ea, s.na, ha)
-    xb, eb = _view(s.xb, s.eb, s.nb, hb)
-    return replace(s, xa=xa, ea=ea, xb=xb, eb=eb)
+def augment_batch(arrays: dict[str, np.ndarray], cfg: AppearanceAugment, rng: np.random.Generator) -> None:
+    """Rewrite the appearance of a padded batch (`data.collate_arrays`) in place, graph by graph as
+    the module docstring says; graphs that draw neither rewrite keep their features bit for bit."""
+    if cfg.p <= 0:
+        return
+    B = len(arrays["xa"])
+    mix = rng.random(B) < cfg.p
+    hue = rng.random(B) < cfg.p
+    share = np.where(mix, rng.uniform(0, cfg.max_mix, B), 0.0)
+    bins = np.where(hue, rng.uniform(-cfg.max_hue_bins, cfg.max_hue_bins, B), 0.0)
+    own_side = rng.random(B) < 0.5
+    for view, turn in (("a", np.where(own_side, bins, 0.0)), ("b", np.where(own_side, 0.0, bins))):
+        rows = mix | (turn != 0)
+        if not rows.any():
+            continue
+        sub = {k: arrays[k + view][rows] for k in ("x", "e", "n", "l", "m")}
+        _rewrite_view(sub["x"], sub["e"], sub["n"], sub["m"], sub["l"], share[rows], turn[rows], rng)
+        arrays["x" + view][rows] = sub["x"]
+        arrays["e" + view][rows] = sub["e"]

@@ -36,6 +36,32 @@ class Sample:
         return Sample(self.xb, self.eb, self.nb, self.xa, self.ea, self.na, self.target.T.copy(), self.name)
 
 
+def collate_arrays(samples: list[Sample]) -> dict[str, np.ndarray]:
+    """Pad samples into batch arrays (fit.py `collate` makes them tensors; the appearance
+    augmentation rewrites them first): nodes, edges, neighbours, edge and node masks, targets."""
+    B = len(samples)
+    Va = max(len(s.xa) for s in samples)
+    Vb = max(len(s.xb) for s in samples)
+    Ka = max(s.ea.shape[1] for s in samples)
+    Kb = max(s.eb.shape[1] for s in samples)
+    F, Fe = samples[0].xa.shape[1], samples[0].ea.shape[2]
+    out = {"xa": np.zeros((B, Va, F), np.float32), "xb": np.zeros((B, Vb, F), np.float32),
+           "ea": np.zeros((B, Va, Ka, Fe), np.float32), "eb": np.zeros((B, Vb, Kb, Fe), np.float32),
+           "na": np.zeros((B, Va, Ka), np.int64), "nb": np.zeros((B, Vb, Kb), np.int64),
+           "la": np.zeros((B, Va, Ka), np.float32), "lb": np.zeros((B, Vb, Kb), np.float32),
+           "ma": np.zeros((B, Va), np.float32), "mb": np.zeros((B, Vb), np.float32),
+           "target": np.zeros((B, Va, Vb), np.float32)}
+    for k, s in enumerate(samples):
+        va, vb, ka, kb = len(s.xa), len(s.xb), s.ea.shape[1], s.eb.shape[1]
+        out["xa"][k, :va], out["xb"][k, :vb] = s.xa, s.xb
+        out["ea"][k, :va, :ka], out["eb"][k, :vb, :kb] = s.ea, s.eb
+        out["na"][k, :va, :ka], out["nb"][k, :vb, :kb] = s.na, s.nb
+        out["la"][k, :va, :ka], out["lb"][k, :vb, :kb] = 1, 1
+        out["ma"][k, :va], out["mb"][k, :vb] = 1, 1
+        out["target"][k, :va, :vb] = s.target
+    return out
+
+
 def target_matrix(own: SharedFrame, other: SharedFrame, gt_box_pairs: np.ndarray) -> np.ndarray:
     """(Va, Vb) float32: 1 where own vehicle i and other vehicle j come from a ground-truth box pair."""
     t = np.zeros((own.num_vehicles, other.num_vehicles), np.float32)

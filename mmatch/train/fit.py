@@ -18,8 +18,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from mmatch.train.augment import AppearanceAugment, augment
-from mmatch.train.data import Sample
+from mmatch.train.augment import AppearanceAugment, augment_batch
+from mmatch.train.data import Sample, collate_arrays
 from mmatch.train.model import RMNet, weighted_bce
 
 log = logging.getLogger(__name__)
@@ -55,27 +55,7 @@ class EpochStats:
 
 def collate(samples: list[Sample]) -> dict[str, torch.Tensor]:
     """Pad a list of samples into batch tensors (see model.RMNet.forward)."""
-    B = len(samples)
-    Va = max(len(s.xa) for s in samples)
-    Vb = max(len(s.xb) for s in samples)
-    Ka = max(s.ea.shape[1] for s in samples)
-    Kb = max(s.eb.shape[1] for s in samples)
-    F, Fe = samples[0].xa.shape[1], samples[0].ea.shape[2]
-    out = {"xa": np.zeros((B, Va, F), np.float32), "xb": np.zeros((B, Vb, F), np.float32),
-           "ea": np.zeros((B, Va, Ka, Fe), np.float32), "eb": np.zeros((B, Vb, Kb, Fe), np.float32),
-           "na": np.zeros((B, Va, Ka), np.int64), "nb": np.zeros((B, Vb, Kb), np.int64),
-           "la": np.zeros((B, Va, Ka), np.float32), "lb": np.zeros((B, Vb, Kb), np.float32),
-           "ma": np.zeros((B, Va), np.float32), "mb": np.zeros((B, Vb), np.float32),
-           "target": np.zeros((B, Va, Vb), np.float32)}
-    for k, s in enumerate(samples):
-        va, vb, ka, kb = len(s.xa), len(s.xb), s.ea.shape[1], s.eb.shape[1]
-        out["xa"][k, :va], out["xb"][k, :vb] = s.xa, s.xb
-        out["ea"][k, :va, :ka], out["eb"][k, :vb, :kb] = s.ea, s.eb
-        out["na"][k, :va, :ka], out["nb"][k, :vb, :kb] = s.na, s.nb
-        out["la"][k, :va, :ka], out["lb"][k, :vb, :kb] = 1, 1
-        out["ma"][k, :va], out["mb"][k, :vb] = 1, 1
-        out["target"][k, :va, :vb] = s.target
-    return {k: torch.from_numpy(v) for k, v in out.items()}
+    return {k: torch.from_numpy(v) for k, v in collate_arrays(samples).items()}
 
 
 def _forward(net: RMNet, b: dict[str, torch.Tensor], all_steps: bool = True) -> list[torch.Tensor]:
@@ -155,7 +135,9 @@ def fit(train: list[Sample], val: list[Sample], cfg: FitConfig = FitConfig(),
         net.train()
         total = 0.0
         for k, idx in enumerate(_batches(sizes, cfg.batch, rng)):
-            b = collate([augment(pool[i], cfg.augment, aug_rng) for i in idx])
+            arrays = collate_arrays([pool[i] for i in idx])
+            augment_batch(arrays, cfg.augment, aug_rng)
+            b = {k: torch.from_numpy(v) for k, v in arrays.items()}
             mask = b["ma"].unsqueeze(2) * b["mb"].unsqueeze(1)
             loss = weighted_bce(_forward(net, b), b["target"], mask)
             opt.zero_grad()
