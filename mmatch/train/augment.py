@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmatch.ego.match.graph import DESC_GROUPS
+from mmatch.ego.match.graph import DESC_GROUPS, hellinger_embedding
 
 HUE = DESC_GROUPS[0]
 DESC_DIM = DESC_GROUPS[-1][1]
@@ -54,7 +54,6 @@ def _rewrite_view(x: np.ndarray, e: np.ndarray, nbr: np.ndarray, node_mask: np.n
     (B, V) and (B, V, K); share (B,) mixing shares, bins (B,) hue turns (0: none)."""
     h = np.asarray(x[..., :DESC_DIM], np.float64) ** 2
     s = share[:, None, None]
-    emb = np.zeros_like(h)
     for lo, hi in DESC_GROUPS:
         g = h[..., lo:hi]
         if share.any():
@@ -62,8 +61,8 @@ def _rewrite_view(x: np.ndarray, e: np.ndarray, nbr: np.ndarray, node_mask: np.n
             g = (1 - s) * g + s * draw / draw.sum(axis=-1, keepdims=True)
         if (lo, hi) == HUE and bins.any():
             g = _turned(g, bins)
-        emb[..., lo:hi] = np.sqrt(g) / np.maximum(np.linalg.norm(np.sqrt(g), axis=-1, keepdims=True), 1e-9)
-    emb *= node_mask[..., None]
+        h[..., lo:hi] = g
+    emb = hellinger_embedding(h.reshape(-1, DESC_DIM)).reshape(h.shape) * node_mask[..., None]
     x[..., :DESC_DIM] = emb
     if e.shape[2]:
         nb = emb[np.arange(len(emb))[:, None, None], nbr]                 # (B, V, K, 32)
