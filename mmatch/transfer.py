@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from mmatch.cav.depth_scale import box_bearings
+from mmatch.ego.match.graph import DESC_GROUPS
 from mmatch.errors import ConfigError, MMatchError
 from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_with, report, scene_depth_evidence
 from mmatch.scene_io import load_scene
@@ -85,8 +86,7 @@ def _double_points(view: View, rng: np.random.Generator) -> View:
     return replace(view, points=np.concatenate([p, copy]).astype(np.float32), point_labels=labels)
 
 
-HUE_BINS = 16              # the descriptor's hue histogram: its first 16 entries (DESIGN.md)
-DESCRIPTOR_GROUPS = ((0, 16), (16, 24), (24, 32))
+HUE_BINS = DESC_GROUPS[0][1]       # the descriptor's hue histogram: its first entries (DESIGN.md)
 
 
 def _descriptor_noise(share: float) -> Callable[[View, np.random.Generator], View]:
@@ -94,7 +94,7 @@ def _descriptor_noise(share: float) -> Callable[[View, np.random.Generator], Vie
     draw) at `share`: a camera or a detector whose boxes say less about a vehicle's colour."""
     def apply(view: View, rng: np.random.Generator) -> View:
         f = np.array(view.features, np.float64)
-        for lo, hi in DESCRIPTOR_GROUPS:
+        for lo, hi in DESC_GROUPS:
             mass = f[:, lo:hi].sum(axis=1, keepdims=True)
             f[:, lo:hi] = (1 - share) * f[:, lo:hi] + share * mass * rng.dirichlet(np.ones(hi - lo), len(f))
         return replace(view, features=f.astype(np.float32))
