@@ -55,7 +55,11 @@ class EpochStats:
 
 def collate(samples: list[Sample]) -> dict[str, torch.Tensor]:
     """Pad a list of samples into batch tensors (see model.RMNet.forward)."""
-    return {k: torch.from_numpy(v) for k, v in collate_arrays(samples).items()}
+    return _tensors(collate_arrays(samples))
+
+
+def _tensors(arrays: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    return {k: torch.from_numpy(v) for k, v in arrays.items()}
 
 
 def _forward(net: RMNet, b: dict[str, torch.Tensor], all_steps: bool = True) -> list[torch.Tensor]:
@@ -137,7 +141,7 @@ def fit(train: list[Sample], val: list[Sample], cfg: FitConfig = FitConfig(),
         for k, idx in enumerate(_batches(sizes, cfg.batch, rng)):
             arrays = collate_arrays([pool[i] for i in idx])
             augment_batch(arrays, cfg.augment, aug_rng)
-            b = {k: torch.from_numpy(v) for k, v in arrays.items()}
+            b = _tensors(arrays)
             mask = b["ma"].unsqueeze(2) * b["mb"].unsqueeze(1)
             loss = weighted_bce(_forward(net, b), b["target"], mask)
             opt.zero_grad()
