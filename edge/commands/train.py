@@ -33,11 +33,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--val-share", type=float, default=0.1, help="share of the scenes kept for validation")
     p.add_argument("--seed", type=int, default=1000, help="simulation seed (never the evaluation seeds)")
     p.add_argument("--train-seed", type=int, default=0, help="seed of initialisation and batch order")
-    p.add_argument("--epochs", type=int, default=60)
-    p.add_argument("--patience", type=int, default=8, help="early stopping: epochs without a better validation loss")
+    p.add_argument("--epochs", type=int, default=TrainRequest.epochs, help="length of the cosine schedule")
+    p.add_argument("--patience", type=int, default=TrainRequest.patience,
+                   help="early stopping: epochs without a better validation loss")
+    p.add_argument("--min-epochs", type=int, default=TrainRequest.min_epochs,
+                   help="no early stop before this many epochs (early in the schedule the validation loss is "
+                        "noisy: a pause of 8 epochs at epoch 29 stopped one run 11 epochs short)")
     p.add_argument("--steps", type=int, default=3, help="message-passing steps")
     p.add_argument("--jobs", type=int, default=2, help="simulation worker processes")
-    p.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest on these small graphs)")
+    p.add_argument("--threads", type=int, default=TrainRequest.threads,
+                   help="torch threads: 2 on an otherwise idle 2-core machine (an epoch 17 s against 22), "
+                        "1 beside other jobs (two threads competing for busy cores crawl)")
     p.add_argument("--appearance-augment", type=float, default=TrainRequest.appearance_augment,
                    help="probability of each appearance rewrite of a training graph: descriptors mixed with "
                         "random histograms, one view's hues turned (mmatch/train/augment.py)")

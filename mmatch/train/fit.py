@@ -31,11 +31,12 @@ class FitConfig:
     batch: int = 64
     lr: float = 3e-3
     weight_decay: float = 1e-5
-    patience: int = 8            # epochs without a better validation loss before stopping
+    patience: int = 8            # epochs without a better validation loss before stopping ...
+    min_epochs: int = 0          # ... once this many epochs have run
     steps: int = 3               # message-passing steps
     top_k: int = 3               # partners per vehicle the matcher keeps (for the top-k recall figure)
     seed: int = 0
-    threads: int = 1             # more threads are 30x slower on these small graphs (2 shared cores)
+    threads: int = 1             # torch threads (TrainRequest's default is 2: see edge/commands/train.py)
     augment: AppearanceAugment = AppearanceAugment()   # appearance rewrites of training graphs (augment.py)
 
 
@@ -166,7 +167,7 @@ def fit(train: list[Sample], val: list[Sample], cfg: FitConfig = FitConfig(),
             best, best_state, stale = vloss, copy.deepcopy(net.state_dict()), 0
         else:
             stale += 1
-            if stale >= cfg.patience:
+            if stale >= cfg.patience and epoch + 1 >= cfg.min_epochs:
                 break
     net.load_state_dict(best_state)
     net.eval()

@@ -20,8 +20,10 @@ class TrainRequest:
     val_share: float = 0.1
     seed: int = 1000
     train_seed: int = 0
-    epochs: int = 60
+    epochs: int = 60                   # the cosine schedule's length
     patience: int = 8
+    min_epochs: int = 0                # no early stop before this many epochs (the rate still high; more than
+                                       # epochs: the whole schedule runs)
     steps: int = 3
     jobs: int = 2
     threads: int = 1
@@ -43,6 +45,8 @@ class TrainRequest:
             raise ConfigError(f"appearance_augment: {self.appearance_augment} must lie between 0 and 1")
         if self.epochs < 1 or self.steps < 1 or self.jobs < 1 or self.threads < 1 or self.patience < 1:
             raise ConfigError("epochs, patience, steps, jobs and threads must be at least 1")
+        if self.min_epochs < 0:
+            raise ConfigError(f"min_epochs: {self.min_epochs} must be at least 0")
         parse_range(self.dense_vehicles, "dense_vehicles")
         lo, _ = parse_range(self.synthetic_vehicles, "synthetic_vehicles")
         if lo < 2:

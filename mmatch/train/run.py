@@ -79,7 +79,8 @@ def train(req: TrainRequest) -> dict:
     if len(samples) < 4:
         raise ConfigError(f"scenes: only {len(samples)} usable frame pairs (2+ vehicles a view); simulate more")
     tr, val = split(samples, req.val_share, req.train_seed)
-    cfg = FitConfig(epochs=req.epochs, patience=req.patience, steps=req.steps, seed=req.train_seed,
+    cfg = FitConfig(epochs=req.epochs, patience=req.patience, min_epochs=req.min_epochs, steps=req.steps,
+                    seed=req.train_seed,
                     threads=req.threads, augment=AppearanceAugment(p=req.appearance_augment))
 
     def on_epoch(st, history):
@@ -108,7 +109,8 @@ def train(req: TrainRequest) -> dict:
                  "synthetic_seed": req.seed + 2 if req.synthetic_scenes else None,
                  "frame_pairs": len(samples), "train": len(tr), "validation": len(val),
                  "cav_side": "the real CAV-side pipeline (mmatch.cav.process) on both views"},
-        "training": {"seed": req.train_seed, "epochs_run": len(history), "best_epoch": best.epoch,
+        "training": {"seed": req.train_seed, "epochs": req.epochs, "min_epochs": req.min_epochs,
+                     "epochs_run": len(history), "best_epoch": best.epoch,
                      "appearance_augment": asdict(cfg.augment),
                      "torch": torch.__version__, "threads": req.threads,
                      "data_seconds": round(t_data, 1), "samples_reused": reused,
@@ -144,7 +146,8 @@ mmatch/train/model.py). Written by `mmatch train`; inputs and shapes in mmatch/e
   frame pairs ({d['synthetic_vehicles']} vehicles a view, mmatch/ego/match/synthetic.py, seed {d['synthetic_seed']});
   each pair also seen from the other vehicle. Split by scene: {d['train']} training, {d['validation']} validation.
 - Training: weighted BCE over the steps (omega = #negative / #positive), AdamW, cosine schedule,
-  seed {t['seed']}, early stopping on the validation loss: {t['epochs_run']} epochs run, best {t['best_epoch']};
+  seed {t['seed']}, early stopping on the validation loss (not before epoch {t.get('min_epochs', 0)}): {t['epochs_run']} epochs
+  run of {t.get('epochs', t['epochs_run'])}, best {t['best_epoch']};
   {_augment_line(t.get('appearance_augment'))}
   torch {t['torch']}, {t['threads']} thread(s); {t['data_seconds']} s {'loading the saved samples' if t['samples_reused'] else 'simulating'}, {t['total_seconds']} s in all.
 - Validation (last step, mutual-best pairs above 0.5, no geometry): precision {v['precision']:.3f},

@@ -44,3 +44,5 @@ def test_bad_arguments_name_the_key(capsys):
     assert rc == 2 and "val_share" in capsys.readouterr().err
     rc = main(["train", "--out", "/tmp/unused-rmnet", "--appearance-augment", "-0.1"])
     assert rc == 2 and "appearance_augment" in capsys.readouterr().err
+    rc = main(["train", "--out", "/tmp/unused-rmnet", "--min-epochs", "-1"])
+    assert rc == 2 and "min_epochs" in capsys.readouterr().err
