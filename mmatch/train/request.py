@@ -20,15 +20,15 @@ class TrainRequest:
     val_share: float = 0.1
     seed: int = 1000
     train_seed: int = 0
-    epochs: int = 60                   # the cosine schedule's length
+    epochs: int = 48                   # the cosine schedule's length
     patience: int = 8
-    min_epochs: int = 0                # no early stop before this many epochs (the rate still high; more than
+    min_epochs: int = 36               # no early stop before this many epochs (the rate still high; more than
                                        # epochs: the whole schedule runs)
     steps: int = 3
     jobs: int = 2
-    threads: int = 1
+    threads: int = 2                   # 1 beside other jobs: two threads on a shared, busy 2-core machine crawl
     samples: str | None = None
-    appearance_augment: float = 0.0    # probability of each appearance rewrite of a training graph (augment.py)
+    appearance_augment: float = 0.5    # probability of each appearance rewrite of a training graph (augment.py)
 
     @classmethod
     def from_args(cls, args) -> TrainRequest:

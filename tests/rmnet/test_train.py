@@ -46,3 +46,20 @@ def test_bad_arguments_name_the_key(capsys):
     assert rc == 2 and "appearance_augment" in capsys.readouterr().err
     rc = main(["train", "--out", "/tmp/unused-rmnet", "--min-epochs", "-1"])
     assert rc == 2 and "min_epochs" in capsys.readouterr().err
+
+
+def test_default_request_is_the_shipped_models_recipe():
+    """`mmatch train` with no options trains what mmatch/models/rmnet.md says the shipped model is."""
+    from importlib import resources
+
+    from mmatch.train.request import TrainRequest
+
+    card = resources.files("mmatch.models").joinpath("rmnet.md").read_text()
+    meta = json.loads(card.split("```json")[1].split("```")[0])
+    req, data, training = TrainRequest(out="unused"), meta["data"], meta["training"]
+    assert (req.seed, req.scenes, req.physics) == (data["simulation_seed"], data["scenes"], data["physics"])
+    assert (req.dense_scenes, req.synthetic_scenes, req.synthetic_vehicles) == \
+        (data["dense_scenes"], data["synthetic_scenes"], data["synthetic_vehicles"])
+    assert (req.train_seed, req.threads) == (training["seed"], training["threads"])
+    assert (req.epochs, req.min_epochs) == (training["epochs"], training["min_epochs"])
+    assert req.appearance_augment == training["appearance_augment"]["p"]
