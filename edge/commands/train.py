@@ -42,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=3, help="message-passing steps")
     p.add_argument("--jobs", type=int, default=2, help="simulation worker processes")
     p.add_argument("--threads", type=int, default=TrainRequest.threads,
-                   help="torch threads: 2 on an otherwise idle 2-core machine (an epoch 17 s against 22), "
+                   help="torch threads: 2 on an otherwise idle 2-core machine (an epoch 13-20 s against 20-23), "
                         "1 beside other jobs (two threads competing for busy cores crawl)")
     p.add_argument("--appearance-augment", type=float, default=TrainRequest.appearance_augment,
                    help="probability of each appearance rewrite of a training graph: descriptors mixed with "

@@ -80,8 +80,7 @@ def train(req: TrainRequest) -> dict:
         raise ConfigError(f"scenes: only {len(samples)} usable frame pairs (2+ vehicles a view); simulate more")
     tr, val = split(samples, req.val_share, req.train_seed)
     cfg = FitConfig(epochs=req.epochs, patience=req.patience, min_epochs=req.min_epochs, steps=req.steps,
-                    seed=req.train_seed,
-                    threads=req.threads, augment=AppearanceAugment(p=req.appearance_augment))
+                    seed=req.train_seed, threads=req.threads, augment=AppearanceAugment(p=req.appearance_augment))
 
     def on_epoch(st, history):
         epoch_figure(out / "figures" / f"epoch_{st.epoch:03d}.png", history, cfg.epochs)
