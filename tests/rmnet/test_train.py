@@ -63,3 +63,15 @@ def test_default_request_is_the_shipped_models_recipe():
     assert (req.train_seed, req.threads) == (training["seed"], training["threads"])
     assert (req.epochs, req.min_epochs) == (training["epochs"], training["min_epochs"])
     assert req.appearance_augment == training["appearance_augment"]["p"]
+
+
+def test_the_command_line_defaults_are_the_requests():
+    """`mmatch train --out DIR` asks for exactly TrainRequest's defaults (the recipe the card is held to)."""
+    import argparse
+
+    from mmatch.edge.commands.train import add_arguments
+    from mmatch.train.request import TrainRequest
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    assert TrainRequest.from_args(p.parse_args(["--out", "x"])) == TrainRequest(out="x")
