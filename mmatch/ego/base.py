@@ -300,6 +300,24 @@ def _axis_angles(own: SharedFrame, other: SharedFrame) -> tuple[float, float] | 
     return None if min(s_own, s_other) < ROAD_AXIS_MIN_STRENGTH else (a_own, a_other)
 
 
+CROSS_BAND_DEG = 35.0
+
+
+def crossing_allowance(own: SharedFrame, other: SharedFrame, band_deg: float = CROSS_BAND_DEG) -> np.ndarray | None:
+    """(4,) rad: how much farther than a yaw gate each `heading_yaws` candidate lets a
+    hypothesis lie, or None without the velocities' prior.
+
+    Roads do not always cross at right angles: with the CAV on a crossing road 60 deg off the
+    Ego's, the true yaw lies 30 deg from every candidate. The two crossing-road candidates (odd
+    k: the directions of travel a quarter turn apart) therefore admit band_deg more (a crossing
+    at 45-135 deg with a 10 deg gate); the same-road ones (k = 0, 2) do not. Only the
+    velocities tell a crossing from the same road: the road axes hold modulo 90 deg, so without
+    the velocities (None) every candidate keeps the plain gate (README, "Oblique junctions")."""
+    if velocity_heading_yaws(own, other) is None or band_deg <= 0:
+        return None
+    return np.radians(band_deg) * (np.arange(4) % 2)
+
+
 def yaw_gap(yaw: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     """Absolute angular distance (rad) of each yaw to its nearest candidate."""
     d = np.asarray(yaw)[..., None] - candidates

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmatch.ego.base import (ROAD_AXIS_MIN_STRENGTH, MatchContext, descriptor_distance, heading_yaws, road_axis,
-                             road_speed_consistency, velocity_heading_yaws)
+from mmatch.ego.base import (CROSS_BAND_DEG, ROAD_AXIS_MIN_STRENGTH, MatchContext, crossing_allowance,
+                             descriptor_distance, heading_yaws, road_axis, road_speed_consistency,
+                             velocity_heading_yaws)
 from mmatch.ego.registry import get_aligner, get_matcher
 from mmatch.ego.rigid import icp2d, kabsch2d, se2_to_matrix
 from mmatch.errors import ConfigError
@@ -69,6 +70,48 @@ def test_heading_yaws_need_moving_radars():
     assert np.degrees(yaws[0]) == pytest.approx(90)
     other.ego_velocity = np.array([0.5, 0.5])
     assert heading_yaws(own, other) is None
+
+
+def test_only_a_crossing_road_under_the_velocities_may_lie_off_the_right_angle():
+    """The two crossing-road yaw candidates (odd k) take the band beyond the gate; the same-road
+    ones do not; road axes (a radar standing still) cannot tell a crossing, so none do."""
+    own = SharedFrame("e", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 15.0]))
+    other = SharedFrame("c", 0, 0.0, 0.5, ego_velocity=np.array([15.0, 0.0]))
+    allow = crossing_allowance(own, other)
+    assert np.degrees(allow) == pytest.approx([0.0, CROSS_BAND_DEG, 0.0, CROSS_BAND_DEG])
+    assert crossing_allowance(own, other, band_deg=0.0) is None
+    own.ego_velocity = np.array([0.0, 0.2])
+    assert crossing_allowance(own, other) is None
+
+
+def test_oblique_junctions_are_found_through_the_crossing_band(tmp_path, monkeypatch):
+    """Roads crossing at 60 deg: with the CAV on the crossing road the true yaw lies 30 deg off
+    every right-angle candidate. With the band the path finds and emits some of these transforms;
+    without it (the yaw gate alone) it finds almost none."""
+    import mmatch.ego.confidence as cf
+    import mmatch.ego.match.consensus as cs
+    import mmatch.ego.match.rmnet as rm
+    from mmatch.edge.cli import main
+    from mmatch.evaluate import EvalConfig, evaluate_scene
+
+    assert main(["sim", "--out", str(tmp_path), "--n", "40", "--seed", "7", "--mode", "hard",
+                 "--physics", "wide", "--junction", "60-60"]) == 0
+    scenes = [s for s in map(load_scene, sorted(tmp_path.glob("*.npz")))
+              if s.meta["road"] != "straight" and s.meta["relation"] == "perpendicular"]
+
+    def run() -> tuple[int, int, int]:
+        out = [evaluate_scene(s, EvalConfig()) for s in scenes]
+        right = sum(bool(r["candidate"] and r["candidate"]["success"]) for r in out)
+        gross = sum(bool(r["candidate"] and r["candidate"]["emitted"] and r["candidate"]["gross"]) for r in out)
+        return right, sum(r["success"] for r in out), gross
+
+    right, success, gross = run()
+    for module in (cs, rm, cf):
+        monkeypatch.setattr(module, "crossing_allowance", lambda *args, **kwargs: None)
+    right0, success0, _ = run()
+    assert len(scenes) >= 12
+    assert right >= 5 and success >= 2 and gross == 0, (right, success, gross)
+    assert right0 <= 1 and success0 == 0, (right0, success0)
 
 
 def _street(yaw_deg: float, seed: int, cross: bool = False) -> np.ndarray:

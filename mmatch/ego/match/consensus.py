@@ -16,9 +16,9 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, SightingModel, background_tree,
-                             detection_scores, heading_yaws, road_speed_consistency, sighting_gaps,
-                             sighting_offsets)
+from mmatch.ego.base import (CROSS_BAND_DEG, Hypotheses, MatchContext, MatchResult, SightingModel,
+                             background_tree, crossing_allowance, detection_scores, heading_yaws,
+                             road_speed_consistency, sighting_gaps, sighting_offsets)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.observations import (ObservationModel, Observations, mahalanobis, observe,
                                      pair_major_mahalanobis)
@@ -68,6 +68,13 @@ class ConsensusConfig:
     distinct_m: float = 1.5              # hypotheses closer than this (and distinct_deg) count as one
     distinct_deg: float = 3.0
     yaw_gate_deg: float = 10.0           # hypotheses this far from every velocity-heading yaw are dropped
+    cross_band_deg: float = CROSS_BAND_DEG  # ... or as far again beyond the gate from a crossing
+                                         # road's yaw (oblique junctions, base.crossing_allowance)
+    off_grid_penalty: float = 1.0        # score taken from a hypothesis that lies off every heading
+                                         # yaw (a crossing road's, inside the band), growing from 0
+                                         # at the gate to all of it at off_grid_full_deg; such a
+                                         # hypothesis weighs no road speeds (they assume right angles)
+    off_grid_full_deg: float = 35.0
     sighting_hypotheses: bool = True     # each detection taken as the other vehicle itself, under each
                                          # heading yaw: a vehicle following another sees it even when
                                          # the two views share one vehicle or none; on since the
@@ -124,6 +131,7 @@ class ConsensusMatcher:
         if ctx.prior_T is not None and ctx.prior_only:
             cand = cand[:0]                   # tracking frame: the prediction is the only hypothesis
         yaws = heading_yaws(own, other)
+        allow = crossing_allowance(own, other, cfg.cross_band_deg)
         offsets = sighting_offsets(own, other, cfg.sighting)
         cost = D[cand[:, 0], cand[:, 1]]
         most = max(300, cfg.coarse_budget // max(len(A.centres) * len(B.centres), 1))
@@ -136,7 +144,7 @@ class ConsensusMatcher:
             R1, t1 = _single_pair_hypotheses(A.centres, B.centres, single, yaws)
             R, t = np.concatenate([R, R1]), np.concatenate([t, t1])
         if yaws is not None and len(R):
-            keep = _yaw_gap(R, yaws) < np.radians(cfg.yaw_gate_deg)
+            keep = _yaw_gap(R, yaws, allowance=allow) < np.radians(cfg.yaw_gate_deg)
             if keep.any():
                 R, t = R[keep], t[keep]
         n_regular = len(R)
@@ -150,7 +158,8 @@ class ConsensusMatcher:
         if len(R) == 0:
             return MatchResult()
         speed = road_speed_consistency(own, other)
-        alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg), P)
+        off_grid = functools.partial(_off_grid, yaws=yaws, allowance=allow, cfg=cfg)
+        alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg), P, off_grid)
         veh_score = _vehicle_scores(A, B, alike_of(R), R, t, cfg, offsets)
         rank, n_refine = veh_score, cfg.refine_hypotheses
         if prior is not None:
@@ -171,14 +180,16 @@ class ConsensusMatcher:
         # the unrefined hypotheses' vehicle scores are the coarse ones (row by row the same)
         refined = _vehicle_scores(A, B, alike_of(R_ref), R_ref, t_ref, cfg, offsets)
         total = np.concatenate([veh_score[top], refined]) \
-            + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree)
+            + cfg.background_weight * _background_scores(bg_own, bg_other, Rr, tr, cfg, tree) \
+            - cfg.off_grid_penalty * off_grid(Rr)
         if prior is not None and cfg.prior_weight:
             total = total + cfg.prior_weight * _prior_agreement(Rr, tr, prior, cfg)
         best = int(np.argmax(total))
         R_b, t_b = Rr[best], tr[best]
         veto = None
         if speed is not None and yaws is not None:
-            veto = speed[int(np.argmin(_yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
+            veto = None if off_grid(R_b[None])[0] > 0 else \
+                speed[int(np.argmin(_yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
         pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto, _scores(own, cfg), _scores(other, cfg))
         T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
         return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T, descriptor_scale=scale,
@@ -218,15 +229,19 @@ class ConsensusMatcher:
         tree = background_tree(own)
         alike_of = None
         offsets = sighting_offsets(own, other, cfg.sighting)
+        yaws = heading_yaws(own, other)
+        off_grid = functools.partial(_off_grid, yaws=yaws, allowance=crossing_allowance(own, other, cfg.cross_band_deg),
+                                     cfg=cfg)
         if len(A.centres) and len(B.centres):
             D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
-            alike_of = _likeness(D, heading_yaws(own, other), road_speed_consistency(own, other), cfg,
-                                 _confidence(own, cfg), _confidence(other, cfg))
+            alike_of = _likeness(D, yaws, road_speed_consistency(own, other), cfg,
+                                 _confidence(own, cfg), _confidence(other, cfg), off_grid=off_grid)
 
         def of(R: np.ndarray, t: np.ndarray) -> np.ndarray:
             if len(R) == 0:
                 return np.zeros(0)
-            bg = cfg.background_weight * _background_scores(bg_own, bg_other, R, t, cfg, tree)
+            bg = cfg.background_weight * _background_scores(bg_own, bg_other, R, t, cfg, tree) \
+                - cfg.off_grid_penalty * off_grid(R)
             return bg if alike_of is None else _vehicle_scores(A, B, alike_of(R), R, t, cfg, offsets) + bg
         return of
 
@@ -239,10 +254,24 @@ def _prior_agreement(R: np.ndarray, t: np.ndarray, prior: np.ndarray, cfg: Conse
     return np.exp(-0.5 * ((d / cfg.prior_sigma_m) ** 2 + (dy / np.radians(cfg.prior_sigma_deg)) ** 2))
 
 
-def _yaw_gap(R: np.ndarray, yaws: np.ndarray, per_candidate: bool = False) -> np.ndarray:
-    """Angular distance (rad) of each hypothesis' yaw to the prior yaws: (H,) nearest, or (H, 4)."""
+def _yaw_gap(R: np.ndarray, yaws: np.ndarray, per_candidate: bool = False,
+             allowance: np.ndarray | None = None) -> np.ndarray:
+    """Angular distance (rad) of each hypothesis' yaw to the prior yaws: (H,) nearest, or (H, 4);
+    allowance: (4,) rad taken off each candidate's distance (base.crossing_allowance)."""
     gap = np.abs((np.arctan2(R[:, 1, 0], R[:, 0, 0])[:, None] - yaws + np.pi) % (2 * np.pi) - np.pi)
+    if allowance is not None:
+        gap = np.maximum(gap - allowance, 0.0)
     return gap if per_candidate else gap.min(axis=1)
+
+
+def _off_grid(R: np.ndarray, yaws: np.ndarray | None, allowance: np.ndarray | None,
+              cfg: ConsensusConfig) -> np.ndarray:
+    """(H,) 0-1 how far each hypothesis lies off every heading yaw: 0 within the yaw gate, 1 from
+    cfg.off_grid_full_deg on; 0 everywhere without a crossing allowance (ConsensusConfig)."""
+    if yaws is None or allowance is None or len(R) == 0:
+        return np.zeros(len(R))
+    gap = np.degrees(_yaw_gap(R, yaws))
+    return np.clip((gap - cfg.yaw_gate_deg) / max(cfg.off_grid_full_deg - cfg.yaw_gate_deg, 1e-9), 0.0, 1.0)
 
 
 def _scores(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
@@ -257,13 +286,15 @@ def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
     return np.clip(c, cfg.min_confidence, 1.0)
 
 
-def _likeness(D, yaws, speed, cfg, conf_a, conf_b, P=None):
+def _likeness(D, yaws, speed, cfg, conf_a, conf_b, P=None, off_grid=None):
     """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair.
 
     P: (Va, Vb) network pair scores (0-1) or None; with them the appearance likeness takes
     1 - cfg.pair_score_share of the weight and 2 P - 0.5 (the same -0.5 ... 1.5 range) the rest.
     With road speeds a hypothesis's likeness depends on it only through its nearest heading
-    yaw: the (4, Va, Vb) likeness of each yaw is computed once and each hypothesis takes its own."""
+    yaw: the (4, Va, Vb) likeness of each yaw is computed once and each hypothesis takes its own;
+    one off every heading yaw (off_grid(R) > 0: an oblique crossing) takes none, for the road
+    speeds assume right angles."""
     if cfg.desc_width > 0:   # likelihood-shaped: about 2 when clearly alike, 0 when clearly not
         alike = (2.0 / (1.0 + np.exp((D - cfg.desc_mid) / cfg.desc_width)) - 0.5)[None]
     else:
@@ -271,13 +302,17 @@ def _likeness(D, yaws, speed, cfg, conf_a, conf_b, P=None):
     if P is not None:
         alike = (1.0 - cfg.pair_score_share) * alike + cfg.pair_score_share * (2.0 * P - 0.5)[None]
     conf = np.sqrt(conf_a[:, None] * conf_b[None, :])[None]
+    same = (0.5 + alike) * conf - 0.5
     if speed is None or yaws is None:
-        same = (0.5 + alike) * conf - 0.5
         return lambda R: same
     per_yaw = (0.5 + (alike + cfg.speed_weight * speed)) * conf - 0.5           # (4, Va, Vb)
 
     def of(R: np.ndarray) -> np.ndarray:
-        return per_yaw[_yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)]
+        out = per_yaw[_yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)]
+        off = off_grid(R) > 0 if off_grid is not None else None
+        if off is not None and off.any():
+            out[off] = same[0]
+        return out
     return of
 
 

@@ -30,6 +30,7 @@ candidate and no appearance), `descriptor` (Hungarian on descriptor distance alo
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import dataclass, field, replace
@@ -37,8 +38,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree, heading_yaws,
-                             road_speed_consistency, sighting_offsets)
+from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree, crossing_allowance,
+                             heading_yaws, road_speed_consistency, sighting_offsets)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.match import consensus as cs
 from mmatch.ego.match.graph import build_graph
@@ -161,11 +162,13 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
         cand = prune(P, cfg.top_k, cfg.min_prob) if candidates is None else candidates
     w = W[cand[:, 0], cand[:, 1]] if len(cand) else np.zeros(0)
     yaws = heading_yaws(own, other)
+    allow = crossing_allowance(own, other, ccfg.cross_band_deg)
+    off_grid = functools.partial(cs._off_grid, yaws=yaws, allowance=allow, cfg=ccfg)
     prior = ctx.prior_T
     if prior is not None and ctx.prior_only:
         R, t = prior[None, :2, :2], prior[None, :2, 3]
     else:
-        R, t = hypotheses(A.centres, B.centres, cand, w, yaws, cfg)
+        R, t = hypotheses(A.centres, B.centres, cand, w, yaws, cfg, allow)
         if prior is not None:
             R, t = np.concatenate([R, prior[None, :2, :2]]), np.concatenate([t, prior[None, :2, 3]])
     if len(R) == 0 or len(cand) == 0 and prior is None:
@@ -174,7 +177,7 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
     if prior is not None:
         coarse[-1] = np.inf                               # the track's prediction is always refined
     speed = road_speed_consistency(own, other)
-    alike_of = _likeness(P, D, yaws, speed, cfg, use_appearance)
+    alike_of = _likeness(P, D, yaws, speed, cfg, use_appearance, off_grid)
     best = int(np.argmax(coarse))
     if coarse[best] < cfg.min_support:
         return MatchResult(descriptor_scale=scale)
@@ -193,7 +196,8 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
             Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
             offsets = sighting_offsets(own, other, ccfg.sighting)
             total = cs._vehicle_scores(A, B, alike_of(Rr), Rr, tr, ccfg, offsets) \
-                + ccfg.background_weight * cs._background_scores(bg_own, bg_other, Rr, tr, ccfg, tree)
+                + ccfg.background_weight * cs._background_scores(bg_own, bg_other, Rr, tr, ccfg, tree) \
+                - ccfg.off_grid_penalty * off_grid(Rr)
             if prior is not None and ccfg.prior_weight:
                 total = total + ccfg.prior_weight * cs._prior_agreement(Rr, tr, prior, ccfg)
             k = int(np.argmax(total))
@@ -203,7 +207,8 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
             R_b, t_b = R_ref[0], t_ref[0]                 # the best coarse hypothesis, refined
     veto = None
     if speed is not None and yaws is not None:
-        veto = speed[int(np.argmin(cs._yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
+        veto = None if off_grid(R_b[None])[0] > 0 else \
+            speed[int(np.argmin(cs._yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
     pairs, score = assign(A, B, P, R_b, t_b, cfg, veto, cs._scores(own, ccfg), cs._scores(other, ccfg), D)
     T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
     return MatchResult(pairs=pairs, scores=score, T_hint=T, descriptor_scale=scale, hypotheses=hyps)
@@ -230,10 +235,11 @@ def _rot(ang: np.ndarray) -> np.ndarray:
 
 
 def hypotheses(A: np.ndarray, B: np.ndarray, cand: np.ndarray, w: np.ndarray, yaws: np.ndarray | None,
-               cfg: RMNetConfig) -> tuple[np.ndarray, np.ndarray]:
+               cfg: RMNetConfig, allowance: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Transforms (H, 2, 2), (H, 2) from the seeds paired with every compatible candidate, and the seeds under the yaws.
 
-    A (Va, 2), B (Vb, 2) vehicle centres; cand (C, 2) candidate pairs with scores w (C,).
+    A (Va, 2), B (Vb, 2) vehicle centres; cand (C, 2) candidate pairs with scores w (C,);
+    allowance: the yaw gate's crossing allowance (base.crossing_allowance).
     """
     ccfg = cfg.consensus
     if len(cand) == 0:
@@ -263,7 +269,7 @@ def hypotheses(A: np.ndarray, B: np.ndarray, cand: np.ndarray, w: np.ndarray, ya
         Bj = np.repeat(B[cand[seeds, 1]], len(yaws), 0)
         t1 = np.repeat(A[cand[seeds, 0]], len(yaws), 0) - np.einsum("hij,hj->hi", R1, Bj)
         R, t = np.concatenate([R, R1]), np.concatenate([t, t1])
-        keep = cs._yaw_gap(R, yaws) < np.radians(ccfg.yaw_gate_deg)
+        keep = cs._yaw_gap(R, yaws, allowance=allowance) < np.radians(ccfg.yaw_gate_deg)
         if keep.any():
             R, t = R[keep], t[keep]
     return R, t
@@ -301,8 +307,9 @@ def coarse_scores(A: Observations, B: Observations, cand: np.ndarray, w: np.ndar
     return out
 
 
-def _likeness(P: np.ndarray, D: np.ndarray, yaws, speed, cfg: RMNetConfig, use_appearance: bool):
-    """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair (consensus units)."""
+def _likeness(P: np.ndarray, D: np.ndarray, yaws, speed, cfg: RMNetConfig, use_appearance: bool, off_grid=None):
+    """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair (consensus
+    units); hypotheses off every heading yaw (off_grid(R) > 0) weigh no road speeds."""
     ccfg = cfg.consensus
     if use_appearance:
         net = cfg.prob_likeness * P - 0.5
@@ -314,7 +321,11 @@ def _likeness(P: np.ndarray, D: np.ndarray, yaws, speed, cfg: RMNetConfig, use_a
     def of(R: np.ndarray) -> np.ndarray:
         if speed is None or yaws is None:
             return base
-        return base + ccfg.speed_weight * speed[cs._yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)]
+        out = base + ccfg.speed_weight * speed[cs._yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)]
+        off = off_grid(R) > 0 if off_grid is not None else None
+        if off is not None and off.any():
+            out[off] = base[0]
+        return out
     return of
 
 
