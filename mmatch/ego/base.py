@@ -225,6 +225,7 @@ def heading_yaws(own: SharedFrame, other: SharedFrame) -> np.ndarray | None:
     each view (`road_angles`) fixes the yaw up to a multiple of 90 deg: yaw = a_own - a_other
     + k * pi / 2. The directions are the radars' velocities (`velocity_heading_yaws`) or,
     where a radar stands still or turns, the backgrounds' road axes. None when neither gives them.
+    Roads that cross at other angles: `crossing_allowance` widens the crossing candidates' gate.
     """
     return _yaws(road_angles(own, other))
 
