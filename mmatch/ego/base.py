@@ -304,7 +304,8 @@ def _axis_angles(own: SharedFrame, other: SharedFrame) -> tuple[float, float] | 
 CROSS_BAND_DEG = 35.0
 
 
-def crossing_allowance(own: SharedFrame, other: SharedFrame, band_deg: float = CROSS_BAND_DEG) -> np.ndarray | None:
+def crossing_allowance(own: SharedFrame, other: SharedFrame,
+                       band_deg: float = CROSS_BAND_DEG) -> np.ndarray | None:
     """(4,) rad: how much farther than a yaw gate each `heading_yaws` candidate lets a
     hypothesis lie, or None without the velocities' prior.
 

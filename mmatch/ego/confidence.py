@@ -48,9 +48,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mmatch.ego.base import (CROSS_BAND_DEG, Hypotheses, MatchResult, SightingModel, background_tree,
-                             crossing_allowance, heading_yaws, moving_otherwise, point_counts,
-                             radial_ground_speeds, sighting_gaps, sighting_offsets, velocity_heading_yaws)
+from mmatch.ego.base import (CROSS_BAND_DEG, Hypotheses, MatchResult, SightingModel,
+                             background_tree, crossing_allowance, heading_yaws, moving_otherwise,
+                             point_counts, radial_ground_speeds, sighting_gaps, sighting_offsets,
+                             velocity_heading_yaws)
 from mmatch.ego.confidence_trees import TreeEnsemble, choice_features
 from mmatch.ego.observations import ObservationModel, Observations, mahalanobis, observe
 from mmatch.ego.rigid import inv2, rot2

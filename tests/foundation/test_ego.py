@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmatch.ego.base import (CROSS_BAND_DEG, ROAD_AXIS_MIN_STRENGTH, MatchContext, crossing_allowance,
-                             descriptor_distance, heading_yaws, road_axis, road_speed_consistency,
-                             velocity_heading_yaws)
+from mmatch.ego.base import (CROSS_BAND_DEG, ROAD_AXIS_MIN_STRENGTH, MatchContext,
+                             crossing_allowance, descriptor_distance, heading_yaws, road_axis,
+                             road_speed_consistency, velocity_heading_yaws)
 from mmatch.ego.registry import get_aligner, get_matcher
 from mmatch.ego.rigid import icp2d, kabsch2d, se2_to_matrix
 from mmatch.errors import ConfigError
@@ -102,7 +102,8 @@ def test_oblique_junctions_are_found_through_the_crossing_band(tmp_path, monkeyp
     def run() -> tuple[int, int, int]:
         out = [evaluate_scene(s, EvalConfig()) for s in scenes]
         right = sum(bool(r["candidate"] and r["candidate"]["success"]) for r in out)
-        gross = sum(bool(r["candidate"] and r["candidate"]["emitted"] and r["candidate"]["gross"]) for r in out)
+        gross = sum(bool(r["candidate"] and r["candidate"]["emitted"] and r["candidate"]["gross"])
+                    for r in out)
         return right, sum(r["success"] for r in out), gross
 
     right, success, gross = run()

@@ -73,7 +73,7 @@ class ConsensusConfig:
     off_grid_penalty: float = 1.0        # score taken from a hypothesis that lies off every heading
                                          # yaw (a crossing road's, inside the band), growing from 0
                                          # at the gate to all of it at off_grid_full_deg; such a
-                                         # hypothesis weighs no road speeds (they assume right angles)
+                                         # hypothesis weighs no road speeds (right angles assumed)
     off_grid_full_deg: float = 35.0
     sighting_hypotheses: bool = True     # each detection taken as the other vehicle itself, under each
                                          # heading yaw: a vehicle following another sees it even when
@@ -159,7 +159,8 @@ class ConsensusMatcher:
             return MatchResult()
         speed = road_speed_consistency(own, other)
         off_grid = functools.partial(_off_grid, yaws=yaws, allowance=allow, cfg=cfg)
-        alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg), P, off_grid)
+        alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg), P,
+                             off_grid)
         veh_score = _vehicle_scores(A, B, alike_of(R), R, t, cfg, offsets)
         rank, n_refine = veh_score, cfg.refine_hypotheses
         if prior is not None:
@@ -230,8 +231,8 @@ class ConsensusMatcher:
         alike_of = None
         offsets = sighting_offsets(own, other, cfg.sighting)
         yaws = heading_yaws(own, other)
-        off_grid = functools.partial(_off_grid, yaws=yaws, allowance=crossing_allowance(own, other, cfg.cross_band_deg),
-                                     cfg=cfg)
+        allow = crossing_allowance(own, other, cfg.cross_band_deg)
+        off_grid = functools.partial(_off_grid, yaws=yaws, allowance=allow, cfg=cfg)
         if len(A.centres) and len(B.centres):
             D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
             alike_of = _likeness(D, yaws, road_speed_consistency(own, other), cfg,
@@ -271,7 +272,8 @@ def _off_grid(R: np.ndarray, yaws: np.ndarray | None, allowance: np.ndarray | No
     if yaws is None or allowance is None or len(R) == 0:
         return np.zeros(len(R))
     gap = np.degrees(_yaw_gap(R, yaws))
-    return np.clip((gap - cfg.yaw_gate_deg) / max(cfg.off_grid_full_deg - cfg.yaw_gate_deg, 1e-9), 0.0, 1.0)
+    span = max(cfg.off_grid_full_deg - cfg.yaw_gate_deg, 1e-9)
+    return np.clip((gap - cfg.yaw_gate_deg) / span, 0.0, 1.0)
 
 
 def _scores(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:

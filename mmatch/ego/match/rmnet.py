@@ -38,8 +38,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree, crossing_allowance,
-                             heading_yaws, road_speed_consistency, sighting_offsets)
+from mmatch.ego.base import (Hypotheses, MatchContext, MatchResult, background_tree,
+                             crossing_allowance, heading_yaws, road_speed_consistency,
+                             sighting_offsets)
 from mmatch.ego.descriptor_scale import scaled_distance
 from mmatch.ego.match import consensus as cs
 from mmatch.ego.match.graph import build_graph
@@ -196,7 +197,8 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
             Rr, tr = np.concatenate([R[top], R_ref]), np.concatenate([t[top], t_ref])
             offsets = sighting_offsets(own, other, ccfg.sighting)
             total = cs._vehicle_scores(A, B, alike_of(Rr), Rr, tr, ccfg, offsets) \
-                + ccfg.background_weight * cs._background_scores(bg_own, bg_other, Rr, tr, ccfg, tree) \
+                + ccfg.background_weight * cs._background_scores(bg_own, bg_other, Rr, tr, ccfg,
+                                                                 tree) \
                 - ccfg.off_grid_penalty * off_grid(Rr)
             if prior is not None and ccfg.prior_weight:
                 total = total + ccfg.prior_weight * cs._prior_agreement(Rr, tr, prior, ccfg)
@@ -235,7 +237,8 @@ def _rot(ang: np.ndarray) -> np.ndarray:
 
 
 def hypotheses(A: np.ndarray, B: np.ndarray, cand: np.ndarray, w: np.ndarray, yaws: np.ndarray | None,
-               cfg: RMNetConfig, allowance: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+               cfg: RMNetConfig, allowance: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Transforms (H, 2, 2), (H, 2) from the seeds paired with every compatible candidate, and the seeds under the yaws.
 
     A (Va, 2), B (Vb, 2) vehicle centres; cand (C, 2) candidate pairs with scores w (C,);
@@ -311,7 +314,8 @@ def coarse_scores(A: Observations, B: Observations, cand: np.ndarray, w: np.ndar
     return out
 
 
-def _likeness(P: np.ndarray, D: np.ndarray, yaws, speed, cfg: RMNetConfig, use_appearance: bool, off_grid=None):
+def _likeness(P: np.ndarray, D: np.ndarray, yaws, speed, cfg: RMNetConfig, use_appearance: bool,
+              off_grid=None):
     """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair (consensus
     units); hypotheses off every heading yaw (off_grid(R) > 0) weigh no road speeds."""
     ccfg = cfg.consensus
@@ -325,7 +329,8 @@ def _likeness(P: np.ndarray, D: np.ndarray, yaws, speed, cfg: RMNetConfig, use_a
     def of(R: np.ndarray) -> np.ndarray:
         if speed is None or yaws is None:
             return base
-        out = base + ccfg.speed_weight * speed[cs._yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)]
+        nearest = cs._yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)
+        out = base + ccfg.speed_weight * speed[nearest]
         off = off_grid(R) > 0 if off_grid is not None else None
         if off is not None and off.any():
             out[off] = base[0]
