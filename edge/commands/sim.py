@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="dense traffic: LO-HI other vehicles per scene (default: 1-4 easy, 6-20 hard)")
     p.add_argument("--junction", default=None, metavar="LO-HI",
                    help="angle between the crossing roads of a junction drawn from LO-HI deg (45-135; "
-                        "default: 90, as the heading priors assume)")
+                        "default: 90), for independent scenes and sequences alike")
     p.add_argument("--stopped", type=unit_interval, default=None, metavar="SHARE",
                    help="share of scenes (0-1) in which the Ego or the CAV stands still (its velocity gives "
                         "no road direction; default 0); a world the scenario keeps is the seed's, stopped")
@@ -67,10 +67,11 @@ def _run_sequences(args: argparse.Namespace) -> int:
         raise ConfigError("--vehicles: not available with --sequences (a drive draws its own traffic)")
     if args.stopped is not None:
         raise ConfigError("--stopped: not available with --sequences (a drive draws its own traffic)")
-    if args.junction is not None:
-        raise ConfigError("--junction: not available with --sequences (a drive's turns assume 90 deg)")
-    scenes = generate_sequences(args.out, args.sequences, args.frames, args.seed, args.mode, args.jobs,
-                                Progress("sim"), physics=args.physics)
+    from mmatch.sim.world import junction_override
+
+    with junction_override(_junction_range(args.junction)):
+        scenes = generate_sequences(args.out, args.sequences, args.frames, args.seed, args.mode, args.jobs,
+                                    Progress("sim"), physics=args.physics)
     print(f"wrote {args.sequences} sequences of {args.frames} frames ({len(scenes)} scenes; {args.mode}, "
           f"physics {args.physics}, seed {args.seed}) to {args.out}")
     firsts = [s.meta for s in scenes if s.meta["frame"] == 0]

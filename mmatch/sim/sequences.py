@@ -14,7 +14,9 @@ Each radar runs on its own clock: the Ego's frames at t0 + k / 20 Hz, the CAV's 
 phase offset within half a period of it (capture stamps on the shared clock, DESIGN.md).
 
 World frame: x east, y north, metres; headings from +x, counter-clockwise, radians. The
-main road runs along y through the origin, the cross road (junction layouts) along x.
+main road runs along y through the origin, the cross road (junction layouts) along x, or turned
+about the origin by the world's skew when `mmatch sim --junction` draws oblique junctions
+(`world.meta["junction_deg"]`): its lanes, its traffic and the turns onto it alike.
 """
 
 from __future__ import annotations
@@ -81,27 +83,40 @@ def _straight(p: np.ndarray, heading: float, back: float, ahead: float, step: fl
 
 def turning_lane(start: np.ndarray, h_in: float, end_point: np.ndarray, h_out: float, radius: float,
                  back: float = 300.0, ahead: float = 300.0, step: float = 0.5) -> Lane:
-    """A lane from `start` heading h_in that turns by +-90 deg on an arc of `radius` onto the line
-    through `end_point` heading h_out (the arc is tangent to both lines)."""
+    """A lane from `start` heading h_in that turns (by +-90 deg at a right-angle junction, by
+    45-135 deg at an oblique one) on an arc of `radius` onto the line through `end_point` heading
+    h_out (the arc is tangent to both lines)."""
     d_in = np.array([np.cos(h_in), np.sin(h_in)])
     d_out = np.array([np.cos(h_out), np.sin(h_out)])
     # corner where the two lines meet: start + a d_in = end_point - b d_out
     A = np.column_stack([d_in, d_out])
     a, _ = np.linalg.solve(A, np.asarray(end_point, float) - np.asarray(start, float))
     corner = np.asarray(start, float) + a * d_in
-    t_in, t_out = corner - radius * d_in, corner + radius * d_out
-    left = float(d_in[0] * d_out[1] - d_in[1] * d_out[0]) > 0
+    turn = float(np.arctan2(d_in[0] * d_out[1] - d_in[1] * d_out[0], d_in @ d_out))   # signed, rad
+    if abs(abs(turn) - np.pi / 2) < 1e-9:            # a right angle: exactly the quarter arc
+        turn, reach = float(np.copysign(np.pi / 2, turn)), radius
+    else:                                             # corner to either tangent point
+        reach = radius * np.tan(abs(turn) / 2)
+    t_in, t_out = corner - reach * d_in, corner + reach * d_out
+    left = turn > 0
     centre = t_in + radius * (np.array([-d_in[1], d_in[0]]) if left else np.array([d_in[1], -d_in[0]]))
     a0 = np.arctan2(*(t_in - centre)[::-1])
-    a1 = a0 + (np.pi / 2 if left else -np.pi / 2)
-    n_arc = max(int(np.pi / 2 * radius / step), 4)
+    a1 = a0 + turn
+    n_arc = max(int(abs(turn) * radius / step), 4)
     ang = np.linspace(a0, a1, n_arc + 1)
     arc = centre + radius * np.column_stack([np.cos(ang), np.sin(ang)])
-    seg_in = _straight(t_in, h_in, back + max(a - radius, 0.0), 0.0, step)[:-1]
+    seg_in = _straight(t_in, h_in, back + max(a - reach, 0.0), 0.0, step)[:-1]
     seg_out = _straight(t_out, h_out, 0.0, ahead, step)[1:]
     xy = np.vstack([seg_in, arc, seg_out])
     s_turn0 = float(np.sum(np.hypot(*np.diff(np.vstack([seg_in, arc[:1]]), axis=0).T)))
-    return Lane(xy, (s_turn0, s_turn0 + np.pi / 2 * radius), radius)
+    return Lane(xy, (s_turn0, s_turn0 + abs(turn) * radius), radius)
+
+
+def _turned(p: np.ndarray, angle: float) -> np.ndarray:
+    """Points p (..., 2) turned about the origin (the junction) by angle rad."""
+    c, s = np.cos(angle), np.sin(angle)
+    p = np.asarray(p, float)
+    return np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], axis=-1)
 
 
 @dataclass
@@ -234,9 +249,10 @@ def _main_lane(x: float, heading: float) -> Lane:
 
 
 def _turn_off(rng: np.random.Generator, x: float, heading: float, road: str, centres: np.ndarray,
-              dirs: np.ndarray, half_w: float) -> Lane | None:
-    """A main-road lane (at x, heading +-pi/2) that turns onto an outbound cross-road lane, or None
-    when the layout has no cross road on the side it would turn to."""
+              dirs: np.ndarray, half_w: float, skew: float = 0.0) -> Lane | None:
+    """A main-road lane (at x, heading +-pi/2) that turns onto an outbound cross-road lane (the
+    cross road turned by `skew` rad about the junction), or None when the layout has no cross
+    road on the side it would turn to."""
     going_north = np.sin(heading) > 0
     sides = [-1, 1] if road == "intersection" else [-1]
     side = int(rng.choice(sides))                                    # the cross road's side (x sign)
@@ -247,19 +263,20 @@ def _turn_off(rng: np.random.Generator, x: float, heading: float, road: str, cen
     turning_left = (side < 0) == going_north
     radius = float(rng.uniform(8, 14)) if turning_left else float(rng.uniform(5, 8))
     start = np.array([x, -np.sign(np.sin(heading)) * (half_w + 40.0)])
-    end = np.array([side * (half_w + 40.0), y_out])
+    end = _turned(np.array([side * (half_w + 40.0), y_out]), skew)
     try:
-        return turning_lane(start, heading, end, h_out, radius)
+        return turning_lane(start, heading, end, h_out + skew, radius)
     except np.linalg.LinAlgError:
         return None
 
 
-def _cross_lane(side: int, d: int, c: float, stop_at: float) -> tuple[Lane, float]:
+def _cross_lane(side: int, d: int, c: float, stop_at: float, skew: float = 0.0) -> tuple[Lane, float]:
     """A cross-road lane on the `side` of the junction driving in direction d (+1 east, -1 west) at
-    lane offset c; returns it and the arc length of its stop line (inf when it drives away)."""
+    lane offset c, the cross road turned by `skew` rad about the junction; returns it and the arc
+    length of its stop line (inf when it drives away)."""
     heading = 0.0 if d > 0 else np.pi
     y = -d * abs(c)
-    lane = Lane(_straight(np.array([0.0, y]), heading, 500.0, 500.0))
+    lane = Lane(_turned(_straight(np.array([0.0, y]), heading, 500.0, 500.0), skew))
     inbound = d == -side
     return lane, (500.0 - stop_at if inbound else float("inf"))
 
@@ -296,6 +313,10 @@ def draw_cast(rng: np.random.Generator, world: World, duration_s: float, light: 
     centres, dirs = _forward_lanes(lanes, hard)
     half_w = lanes * LANE_W / 2
     junction = road != "straight"
+    skew = float(np.radians(world.meta.get("junction_deg", 90.0) - 90.0))
+    # how far along the main road the cross road reaches from the junction (its kerb at the
+    # main road's kerb line; half_w at 90 deg)
+    cross_reach = half_w / np.cos(skew) + (half_w + 1.3) * abs(np.tan(skew))
     drivers: list[Driver] = []
     sizes: list[np.ndarray] = []
     story: dict = {}
@@ -312,7 +333,7 @@ def draw_cast(rng: np.random.Generator, world: World, duration_s: float, light: 
     heading = np.pi / 2 if relation == "same" else -np.pi / 2
     horizon = min(duration_s, 4.0)
     gap = float(rng.uniform(15, 40) if relation == "same" else rng.uniform(40, 90))
-    lane = _turn_off(rng, centres[cav_lane], heading, road, centres, dirs, half_w) if turn else None
+    lane = _turn_off(rng, centres[cav_lane], heading, road, centres, dirs, half_w, skew) if turn else None
     if lane is not None:
         s_cav = lane.turn_s[0] - v_cav * float(rng.uniform(0.05, 0.45)) * horizon
         y_cav = float(lane.at(np.array([s_cav]))[0][0, 1])
@@ -363,7 +384,7 @@ def draw_cast(rng: np.random.Generator, world: World, duration_s: float, light: 
             side = int(rng.choice([-1, 1])) if road == "intersection" else -1
             dd = int(rng.choice([-1, 1]))
             c = float(rng.choice(np.abs(centres)))
-            lane, stop = _cross_lane(side, dd, c, half_w + 2.0)
+            lane, stop = _cross_lane(side, dd, c, half_w / np.cos(skew) + 2.0, skew)
             x = side * float(rng.uniform(half_w + 6, 80))
             s0 = 500.0 + (x if dd > 0 else -x)
         else:
@@ -372,7 +393,7 @@ def draw_cast(rng: np.random.Generator, world: World, duration_s: float, light: 
             y = y_ego + float(rng.uniform(-30, 90))
             lane = None
             if junction and rng.random() < 0.3:
-                lane = _turn_off(rng, centres[li], h, road, centres, dirs, half_w)
+                lane = _turn_off(rng, centres[li], h, road, centres, dirs, half_w, skew)
             if lane is None:
                 lane = _main_lane(centres[li], h)
                 s0 = 500.0 + (y if dirs[li] > 0 else -y)
@@ -394,7 +415,7 @@ def draw_cast(rng: np.random.Generator, world: World, duration_s: float, light: 
             break
         side = float(rng.choice([-1, 1]))
         y = y_ego + float(rng.uniform(-20, 90))
-        if junction and abs(y) < half_w + 12:
+        if junction and abs(y) < cross_reach + 12:
             continue
         if any(np.hypot(side * (half_w + 1.3) - p[0], y - p[1]) < 8.0 for p in placed):
             continue
