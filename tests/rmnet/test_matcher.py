@@ -57,6 +57,27 @@ def test_hypotheses_grow_with_the_square_of_the_vehicles():
     assert counts[40] < 6 * counts[20]                 # quadruple would be 16x; capped and pruned
 
 
+def test_a_crossing_roads_band_admits_oblique_two_pair_hypotheses():
+    """Two vehicles seen by both views, the CAV turned 60 deg (an oblique crossing): the yaw gate
+    drops the two-pair hypothesis unless the crossing candidates' band is given."""
+    cfg = rm.RMNetConfig()
+    a = np.radians(60.0)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    B = np.array([[2.0, 20.0], [-4.0, 35.0]])
+    A = B @ R.T + [5.0, 8.0]
+    cand = np.array([[0, 0], [1, 1]])
+    w = np.ones(2)
+    yaws = np.radians([0.0, 90.0, 180.0, 270.0])                  # the right-angle candidates
+    allow = np.radians(35.0) * (np.arange(4) % 2)
+
+    def found(allowance):
+        Rs, ts = rm.hypotheses(A, B, cand, w, yaws, cfg, allowance)
+        yaw = np.degrees(np.arctan2(Rs[:, 1, 0], Rs[:, 0, 0]))
+        return bool(np.any((np.abs(yaw - 60.0) < 0.5) & (np.linalg.norm(ts - [5.0, 8.0], axis=1) < 0.1)))
+
+    assert not found(None) and found(allow)
+
+
 def test_finds_the_transform_and_pairs_in_dense_traffic(matcher):
     own, other, gt, T = dense_pair(7, 20)
     res = matcher(own, other, MatchContext(descriptor_scale=1.0))
