@@ -68,8 +68,8 @@ class ConsensusConfig:
     distinct_m: float = 1.5              # hypotheses closer than this (and distinct_deg) count as one
     distinct_deg: float = 3.0
     yaw_gate_deg: float = 10.0           # hypotheses this far from every velocity-heading yaw are dropped
-    cross_band_deg: float = CROSS_BAND_DEG  # ... or as far again beyond the gate from a crossing
-                                         # road's yaw (oblique junctions, base.crossing_allowance)
+    cross_band_deg: float = CROSS_BAND_DEG  # ... unless within this much beyond the gate of a
+                                         # crossing road's yaw (oblique junctions: crossing_allowance)
     off_grid_penalty: float = 1.0        # score taken from a hypothesis that lies off every heading
                                          # yaw (a crossing road's, inside the band), growing from 0
                                          # at the gate to all of it at off_grid_full_deg; such a
