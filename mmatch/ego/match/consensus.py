@@ -160,7 +160,7 @@ class ConsensusMatcher:
         speed = road_speed_consistency(own, other)
         off_grid = functools.partial(_off_grid, yaws=yaws, allowance=allow, cfg=cfg)
         alike_of = _likeness(D, yaws, speed, cfg, _confidence(own, cfg), _confidence(other, cfg), P,
-                             off_grid)
+                             allow)
         veh_score = _vehicle_scores(A, B, alike_of(R), R, t, cfg, offsets)
         rank, n_refine = veh_score, cfg.refine_hypotheses
         if prior is not None:
@@ -189,8 +189,8 @@ class ConsensusMatcher:
         R_b, t_b = Rr[best], tr[best]
         veto = None
         if speed is not None and yaws is not None:
-            veto = None if off_grid(R_b[None])[0] > 0 else \
-                speed[int(np.argmin(_yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
+            nearest, off = _nearest_heading(R_b[None], yaws, allow, cfg)
+            veto = None if off[0] else speed[nearest[0]] < 0
         pairs, cost = _assign(A, B, D, R_b, t_b, cfg, veto, _scores(own, cfg), _scores(other, cfg))
         T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
         return MatchResult(pairs=pairs, scores=1.0 - cost, T_hint=T, descriptor_scale=scale,
@@ -236,7 +236,7 @@ class ConsensusMatcher:
         if len(A.centres) and len(B.centres):
             D = scaled_distance(own.vehicle_features, other.vehicle_features, descriptor_scale)
             alike_of = _likeness(D, yaws, road_speed_consistency(own, other), cfg,
-                                 _confidence(own, cfg), _confidence(other, cfg), off_grid=off_grid)
+                                 _confidence(own, cfg), _confidence(other, cfg), allowance=allow)
 
         def of(R: np.ndarray, t: np.ndarray) -> np.ndarray:
             if len(R) == 0:
@@ -288,15 +288,26 @@ def _confidence(frame: SharedFrame, cfg: ConsensusConfig) -> np.ndarray:
     return np.clip(c, cfg.min_confidence, 1.0)
 
 
-def _likeness(D, yaws, speed, cfg, conf_a, conf_b, P=None, off_grid=None):
+def _nearest_heading(R: np.ndarray, yaws: np.ndarray, allowance: np.ndarray | None,
+                     cfg: ConsensusConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(H,) each hypothesis' nearest heading yaw (index into yaws) and (H,) whether it lies off
+    every one (beyond the yaw gate: `_off_grid` > 0), from one table of gaps; never off without a
+    crossing allowance."""
+    gap = _yaw_gap(R, yaws, per_candidate=True)
+    if allowance is None:
+        return gap.argmin(axis=1), np.zeros(len(R), bool)
+    return gap.argmin(axis=1), np.degrees(gap.min(axis=1)) > cfg.yaw_gate_deg
+
+
+def _likeness(D, yaws, speed, cfg, conf_a, conf_b, P=None, allowance=None):
     """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair.
 
     P: (Va, Vb) network pair scores (0-1) or None; with them the appearance likeness takes
     1 - cfg.pair_score_share of the weight and 2 P - 0.5 (the same -0.5 ... 1.5 range) the rest.
     With road speeds a hypothesis's likeness depends on it only through its nearest heading
     yaw: the (4, Va, Vb) likeness of each yaw is computed once and each hypothesis takes its own;
-    one off every heading yaw (off_grid(R) > 0: an oblique crossing) takes none, for the road
-    speeds assume right angles."""
+    one off every heading yaw (`_nearest_heading`, with the crossing allowance: an oblique
+    crossing) takes none, for the road speeds assume right angles."""
     if cfg.desc_width > 0:   # likelihood-shaped: about 2 when clearly alike, 0 when clearly not
         alike = (2.0 / (1.0 + np.exp((D - cfg.desc_mid) / cfg.desc_width)) - 0.5)[None]
     else:
@@ -310,9 +321,9 @@ def _likeness(D, yaws, speed, cfg, conf_a, conf_b, P=None, off_grid=None):
     per_yaw = (0.5 + (alike + cfg.speed_weight * speed)) * conf - 0.5           # (4, Va, Vb)
 
     def of(R: np.ndarray) -> np.ndarray:
-        out = per_yaw[_yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)]
-        off = off_grid(R) > 0 if off_grid is not None else None
-        if off is not None and off.any():
+        nearest, off = _nearest_heading(R, yaws, allowance, cfg)
+        out = per_yaw[nearest]
+        if off.any():
             out[off] = same[0]
         return out
     return of

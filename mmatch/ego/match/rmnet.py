@@ -178,7 +178,7 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
     if prior is not None:
         coarse[-1] = np.inf                               # the track's prediction is always refined
     speed = road_speed_consistency(own, other)
-    alike_of = _likeness(P, D, yaws, speed, cfg, use_appearance, off_grid)
+    alike_of = _likeness(P, D, yaws, speed, cfg, use_appearance, allow)
     best = int(np.argmax(coarse))
     if coarse[best] < cfg.min_support:
         return MatchResult(descriptor_scale=scale)
@@ -209,8 +209,8 @@ def verify(own: SharedFrame, other: SharedFrame, ctx: MatchContext, P: np.ndarra
             R_b, t_b = R_ref[0], t_ref[0]                 # the best coarse hypothesis, refined
     veto = None
     if speed is not None and yaws is not None:
-        veto = None if off_grid(R_b[None])[0] > 0 else \
-            speed[int(np.argmin(cs._yaw_gap(R_b[None], yaws, per_candidate=True)[0]))] < 0
+        nearest, off = cs._nearest_heading(R_b[None], yaws, allow, ccfg)
+        veto = None if off[0] else speed[nearest[0]] < 0
     pairs, score = assign(A, B, P, R_b, t_b, cfg, veto, cs._scores(own, ccfg), cs._scores(other, ccfg), D)
     T = se2_to_matrix(R_b, t_b, other.radar_height - own.radar_height)
     return MatchResult(pairs=pairs, scores=score, T_hint=T, descriptor_scale=scale, hypotheses=hyps)
@@ -315,9 +315,10 @@ def coarse_scores(A: Observations, B: Observations, cand: np.ndarray, w: np.ndar
 
 
 def _likeness(P: np.ndarray, D: np.ndarray, yaws, speed, cfg: RMNetConfig, use_appearance: bool,
-              off_grid=None):
+              allowance: np.ndarray | None = None):
     """A function of hypotheses R (H, 2, 2) -> (H or 1, Va, Vb) likeness of each pair (consensus
-    units); hypotheses off every heading yaw (off_grid(R) > 0) weigh no road speeds."""
+    units); hypotheses off every heading yaw (`consensus._nearest_heading` with the crossing
+    allowance) weigh no road speeds."""
     ccfg = cfg.consensus
     if use_appearance:
         net = cfg.prob_likeness * P - 0.5
@@ -329,10 +330,9 @@ def _likeness(P: np.ndarray, D: np.ndarray, yaws, speed, cfg: RMNetConfig, use_a
     def of(R: np.ndarray) -> np.ndarray:
         if speed is None or yaws is None:
             return base
-        nearest = cs._yaw_gap(R, yaws, per_candidate=True).argmin(axis=1)
+        nearest, off = cs._nearest_heading(R, yaws, allowance, ccfg)
         out = base + ccfg.speed_weight * speed[nearest]
-        off = off_grid(R) > 0 if off_grid is not None else None
-        if off is not None and off.any():
+        if off.any():
             out[off] = base[0]
         return out
     return of
