@@ -283,7 +283,8 @@ class Fuser:
         a = chosen[1] if chosen is not None else None
         sure = dict(confidence=confidence, covariance=cov, ambiguity=a.ambiguity if a is not None else float("nan"),
                     evidence=dict(a.features) if a is not None else {}, candidates=cands)
-        young = hyp.hits < self.tracker.cfg.min_hits
+        tcfg = self.tracker.cfg
+        young = hyp.hits < tcfg.min_hits and (tcfg.sure_at_once is None or confidence < tcfg.sure_at_once)
         thr = self._track_threshold
         if confidence < thr or young:
             reason = "unconfirmed" if young and confidence >= thr else (reason or "track not sure")

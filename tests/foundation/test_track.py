@@ -129,9 +129,24 @@ def test_a_far_estimate_starts_a_rival_and_a_near_one_refines_the_track():
         w.frame("ego", 1.0, True), w.frame("cav", 1.0, True), None, [], True)[0]
 
 
+def test_a_confident_first_frame_is_published_at_once_and_a_less_sure_one_waits_for_a_second():
+    """TrackConfig.sure_at_once: a hypothesis one frame has found is published when that frame
+    is at least this sure of it; below, it waits until a second frame agrees (min_hits)."""
+    w = World()
+    own, oth = w.frame("ego", 4.97, True), w.frame("cav", 4.95, True)
+    first = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0))).fuse(own, oth)
+    assert first.status == "fused" and first.confidence >= 0.9 and len(first.pairs) == 3
+    assert rte_m(w.truth(4.97, 4.95), first.T_ego_cav) < 1.0
+    stricter = TrackConfig(max_age_s=2.0, sure_at_once=min(1.0, first.confidence + 1e-6))
+    for cfg in (stricter, TrackConfig(max_age_s=2.0, sure_at_once=None)):
+        waits = Fuser(FusionConfig(track=cfg)).fuse(own, oth)
+        assert waits.status == "no-estimate" and waits.reason == "unconfirmed"
+        assert waits.confidence == first.confidence and np.allclose(waits.refused_T, first.T_ego_cav)
+
+
 def test_a_frame_without_vehicles_is_fused_from_the_track():
     w = World()
-    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0)))
+    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, sure_at_once=None)))
     unconfirmed = fuser.fuse(w.frame("ego", 4.97, True), w.frame("cav", 4.95, True))
     assert unconfirmed.status == "no-estimate" and unconfirmed.reason == "unconfirmed"  # one frame
     assert rte_m(w.truth(4.97, 4.95), unconfirmed.refused_T) < 1.0
@@ -149,7 +164,7 @@ def test_a_frame_without_vehicles_is_fused_from_the_track():
 
 def test_full_searches_come_back_regularly_while_tracking():
     w = World()
-    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, full_search_every=3)))
+    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, full_search_every=3, sure_at_once=None)))
     quick = []
     for k, (t, own, oth) in enumerate(w.drive(9)):
         quick.append(fuser.tracker.tracking_only(fuser.tracker.predict(own, oth)))
