@@ -272,9 +272,11 @@ class Fuser:
         T = hyp.T
         T[2, 3] = other.radar_height - own.radar_height
         cov = hyp.covariance(self.tracker.cfg.filter)
-        # a hypothesis confirmed by this frame is as sure as its belief (built from calibrated
-        # per-frame confidences); one carried by prediction alone loses what its spread lost
-        confidence = float(hyp.belief * (1.0 if hit else within_success(cov)))
+        # the probability that the hypothesis is the right one (its belief, built from calibrated
+        # per-frame confidences) and, being it, lies within 2 m / 5 deg (its spread): confirmed
+        # by this frame or carried by prediction alone. Its belief alone, on a frame that
+        # confirmed it, published a right track drifting 23 deg at 0.89 (yaw sigma 6 deg)
+        confidence = float(hyp.belief * within_success(cov))
         pairs = np.asarray(match.pairs, np.int32).reshape(-1, 2)
         if self._pairs_from_transform:
             pairs = self.matcher.pairs_under(own, other, T[:2, :2], T[:2, 3], match.descriptor_scale)

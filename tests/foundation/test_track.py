@@ -7,7 +7,7 @@ import pytest
 
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.track import TrackConfig, Tracker
-from mmatch.ego.track.filter import Candidate, pose_of
+from mmatch.ego.track.filter import Candidate, pose_of, within_success
 from mmatch.fusion import Fuser, FusionConfig
 from mmatch.metrics import rre_deg, rte_m
 from mmatch.shared import CANONICAL_FOCAL_PX, SharedFrame
@@ -134,14 +134,20 @@ def test_a_confident_first_frame_is_published_at_once_and_a_less_sure_one_waits_
     is at least this sure of it; below, it waits until a second frame agrees (min_hits)."""
     w = World()
     own, oth = w.frame("ego", 4.97, True), w.frame("cav", 4.95, True)
-    first = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0))).fuse(own, oth)
-    assert first.status == "fused" and first.confidence >= 0.9 and len(first.pairs) == 3
-    assert rte_m(w.truth(4.97, 4.95), first.T_ego_cav) < 1.0
-    stricter = TrackConfig(max_age_s=2.0, sure_at_once=min(1.0, first.confidence + 1e-6))
-    for cfg in (stricter, TrackConfig(max_age_s=2.0, sure_at_once=None)):
-        waits = Fuser(FusionConfig(track=cfg)).fuse(own, oth)
-        assert waits.status == "no-estimate" and waits.reason == "unconfirmed"
-        assert waits.confidence == first.confidence and np.allclose(waits.refused_T, first.T_ego_cav)
+    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, sure_at_once=None)))
+    held = fuser.fuse(own, oth)
+    assert held.status == "no-estimate" and held.reason == "unconfirmed"       # sure, but one frame
+    sure = held.confidence
+    # a frame's confirmation makes the track as sure as its belief times its spread's mass within
+    # 2 m / 5 deg (the spread of one frame's measurement matters here)
+    spread = within_success(held.covariance)
+    assert spread < 0.9 and sure == pytest.approx(fuser.tracker.track(oth.sender).best().belief * spread)
+    assert sure >= 0.75 and rte_m(w.truth(4.97, 4.95), held.refused_T) < 1.0
+    at_once = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, sure_at_once=sure - 1e-6))).fuse(own, oth)
+    assert at_once.status == "fused" and at_once.confidence == sure and len(at_once.pairs) == 3
+    assert np.allclose(at_once.T_ego_cav, held.refused_T)
+    waits = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, sure_at_once=min(1.0, sure + 1e-6)))).fuse(own, oth)
+    assert waits.status == "no-estimate" and waits.reason == "unconfirmed"
 
 
 def test_a_frame_without_vehicles_is_fused_from_the_track():

@@ -97,3 +97,24 @@ def test_a_hypothesis_whose_views_miss_what_they_should_see_loses_to_one_whose_v
         step(track, [], 0.05, FilterConfig(), independent=False, view=[views[id(h)] for h in track.hypotheses])
     assert track.best().x[1] > 0
     assert all(h.belief < 0.5 for h in track.hypotheses if h.x[1] < 0)
+
+
+def test_a_refinement_that_leaves_the_yaw_free_neither_moves_it_nor_swells_the_published_spread():
+    # a track held by measurements of 0.3 m / 1 deg takes a refinement of a frame without
+    # background (yaw variance 1e5 rad^2): its published spread must stay about that of the good
+    # measurements (averaged as covariances, one such frame made it 10^4 deg for dozens of frames)
+    from mmatch.ego.track.filter import within_success
+    cfg = FilterConfig()
+    good = np.diag([0.3, 0.3, np.radians(1.0) ** 2])
+    track = PoseTrack([], 0.0, 0.0, np.zeros(2), np.zeros(2))
+    z = np.array([2.0, 30.0, 0.3])
+    for k in range(5):
+        step(track, [Candidate(z, good, 0.95)], 0.05, cfg, independent=k == 0)
+    before = track.best().covariance(cfg)
+    free = np.diag([0.3, 0.3, 1e5])
+    assert step(track, [Candidate(z + [0.1, 0.0, 2.0], free, 0.05)], 0.05, cfg, independent=False)
+    h = track.best()
+    after = h.covariance(cfg)
+    assert abs(wrap(h.x[2] - z[2])) < np.radians(0.5)            # the free yaw did not pull
+    assert np.sqrt(after[2, 2]) < 1.5 * np.sqrt(before[2, 2]) < np.radians(2.0)
+    assert within_success(after) > 0.95

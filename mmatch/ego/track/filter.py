@@ -26,8 +26,9 @@ land in it raise it by a weighted logit of their confidence (frames of one drive
 independent evidence, hence the weight), full searches that answer elsewhere lower it, and
 it ages while nothing lands in it; every frame, the vehicles each radar should see of the
 other's under the hypothesis and misses (`view_evidence`) lower it, by what each miss weighs
-for a wrong pose against the right one, beyond the misses a right pose has too. The output is the best hypothesis with confidence b (times, on a frame
-that gave it no measurement, the probability mass of its Gaussian within 2 m / 5 deg).
+for a wrong pose against the right one, beyond the misses a right pose has too. The output is
+the best hypothesis with confidence b times the probability mass of its Gaussian within 2 m /
+5 deg.
 
 Frames: Ego radar frame, metres, radians, seconds.
 """
@@ -94,7 +95,7 @@ class Hypothesis:
     misses: int = 0
     hit_now: bool = True
     score: float = 0.0                      # log-odds that it is the right one
-    recent_R: np.ndarray | None = None      # running mean of the measurement noise it took (3, 3)
+    recent_R: np.ndarray | None = None      # mean measurement noise it took (3, 3), `_blend_noise`
 
     def covariance(self, cfg: "FilterConfig") -> np.ndarray:
         """(x, y, yaw) covariance to publish: the state's plus the share of the measurement noise
@@ -231,6 +232,17 @@ def update(h: Hypothesis, z: np.ndarray, Rm: np.ndarray) -> Hypothesis:
     return out
 
 
+def _blend_noise(recent: np.ndarray, new: np.ndarray, keep: float = 0.8) -> np.ndarray:
+    """The running mean of the measurement noise a hypothesis took (`Hypothesis.recent_R`), in
+    information form: keep x the old information plus (1 - keep) x the new one's. A measurement
+    that leaves a direction free (a refinement without background, its yaw variance 1e5 rad^2)
+    barely moved the state there, so it must not swell the published bias term: averaged as
+    covariances, one such frame had made a right track's published yaw sigma 10^4 deg for
+    dozens of frames, and every full search that did not land in it refused it."""
+    info = keep * np.linalg.inv(recent) + (1.0 - keep) * np.linalg.inv(new)
+    return np.linalg.inv((info + info.T) / 2)
+
+
 def within_success(cov3: np.ndarray) -> float:
     """Probability mass of N(0, cov3) (x, y m; yaw rad) within 2 m and 5 deg (position and yaw
     taken as independent; position by a fixed sample, so the answer is deterministic)."""
@@ -309,7 +321,7 @@ def step(track: PoseTrack, candidates: list[Candidate], dt: float, cfg: FilterCo
             k = int(gated[np.argmin(d2[gated])])
             h2 = update(h, candidates[k].z, noise[k])
             h2.hits, h2.misses, h2.hit_now = h.hits + 1, 0, True
-            h2.recent_R = noise[k] if h.recent_R is None else 0.8 * h.recent_R + 0.2 * noise[k]
+            h2.recent_R = noise[k] if h.recent_R is None else _blend_noise(h.recent_R, noise[k])
             used.update(int(g) for g in gated)
             e = cfg.hit_weight * float(np.clip(_logit(max(candidates[g].p for g in gated)), -1.0, 3.0))
             h2.score = h.score + (e if independent else min(e, 0.0))
