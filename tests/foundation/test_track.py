@@ -143,10 +143,12 @@ def test_a_confident_first_frame_is_published_at_once_and_a_less_sure_one_waits_
     spread = within_success(held.covariance)
     assert spread < 0.9 and sure == pytest.approx(fuser.tracker.track(oth.sender).best().belief * spread)
     assert sure >= 0.75 and rte_m(w.truth(4.97, 4.95), held.refused_T) < 1.0
-    at_once = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, sure_at_once=sure - 1e-6))).fuse(own, oth)
+    lower = TrackConfig(max_age_s=2.0, sure_at_once=sure - 1e-6)
+    higher = TrackConfig(max_age_s=2.0, sure_at_once=sure + 1e-6)
+    at_once = Fuser(FusionConfig(track=lower)).fuse(own, oth)
     assert at_once.status == "fused" and at_once.confidence == sure and len(at_once.pairs) == 3
     assert np.allclose(at_once.T_ego_cav, held.refused_T)
-    waits = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, sure_at_once=min(1.0, sure + 1e-6)))).fuse(own, oth)
+    waits = Fuser(FusionConfig(track=higher)).fuse(own, oth)
     assert waits.status == "no-estimate" and waits.reason == "unconfirmed"
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.track.filter import (Candidate, FilterConfig, PoseTrack, motion, new_hypothesis, predict, step, update,
-                                     view_evidence, wrap)
+                                     view_evidence, within_success, wrap)
 from mmatch.evaluate import EvalConfig, prepare_scene
 from mmatch.metrics import is_gross, is_success, rre_deg, rte_m
 from mmatch.sequence_eval import SequenceEvalConfig, tracking_fuser
@@ -103,7 +103,6 @@ def test_a_refinement_that_leaves_the_yaw_free_neither_moves_it_nor_swells_the_p
     # a track held by measurements of 0.3 m / 1 deg takes a refinement of a frame without
     # background (yaw variance 1e5 rad^2): its published spread must stay about that of the good
     # measurements (averaged as covariances, one such frame made it 10^4 deg for dozens of frames)
-    from mmatch.ego.track.filter import within_success
     cfg = FilterConfig()
     good = np.diag([0.3, 0.3, np.radians(1.0) ** 2])
     track = PoseTrack([], 0.0, 0.0, np.zeros(2), np.zeros(2))
