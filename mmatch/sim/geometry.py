@@ -19,6 +19,13 @@ def pose_matrix(xy: np.ndarray, yaw: float, z: float) -> np.ndarray:
     return T
 
 
+def turned(p: np.ndarray, angle: float) -> np.ndarray:
+    """Points p (..., 2) turned counter-clockwise about the origin by `angle` rad."""
+    c, s = np.cos(angle), np.sin(angle)
+    p = np.asarray(p, float)
+    return np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], axis=-1)
+
+
 def transform(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Apply a 4x4 transform to (N, 3) points."""
     return pts @ T[:3, :3].T + T[:3, 3]

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmatch.sim.geometry import pose_matrix
+from mmatch.sim.geometry import pose_matrix, turned
 from mmatch.sim.physics import PhysicsFamily, PhysicsSample, family
 from mmatch.sim.scenario import FRAME_PERIOD_S, Scenario, _pairs, _view
 from mmatch.sim.world import LANE_W, Vehicles, World, _colour, _lane_centres, build_world
@@ -110,13 +110,6 @@ def turning_lane(start: np.ndarray, h_in: float, end_point: np.ndarray, h_out: f
     xy = np.vstack([seg_in, arc, seg_out])
     s_turn0 = float(np.sum(np.hypot(*np.diff(np.vstack([seg_in, arc[:1]]), axis=0).T)))
     return Lane(xy, (s_turn0, s_turn0 + abs(turn) * radius), radius)
-
-
-def _turned(p: np.ndarray, angle: float) -> np.ndarray:
-    """Points p (..., 2) turned about the origin (the junction) by angle rad."""
-    c, s = np.cos(angle), np.sin(angle)
-    p = np.asarray(p, float)
-    return np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], axis=-1)
 
 
 @dataclass
@@ -263,7 +256,7 @@ def _turn_off(rng: np.random.Generator, x: float, heading: float, road: str, cen
     turning_left = (side < 0) == going_north
     radius = float(rng.uniform(8, 14)) if turning_left else float(rng.uniform(5, 8))
     start = np.array([x, -np.sign(np.sin(heading)) * (half_w + 40.0)])
-    end = _turned(np.array([side * (half_w + 40.0), y_out]), skew)
+    end = turned(np.array([side * (half_w + 40.0), y_out]), skew)
     try:
         return turning_lane(start, heading, end, h_out + skew, radius)
     except np.linalg.LinAlgError:
@@ -276,7 +269,7 @@ def _cross_lane(side: int, d: int, c: float, stop_at: float, skew: float = 0.0) 
     length of its stop line (inf when it drives away)."""
     heading = 0.0 if d > 0 else np.pi
     y = -d * abs(c)
-    lane = Lane(_turned(_straight(np.array([0.0, y]), heading, 500.0, 500.0), skew))
+    lane = Lane(turned(_straight(np.array([0.0, y]), heading, 500.0, 500.0), skew))
     inbound = d == -side
     return lane, (500.0 - stop_at if inbound else float("inf"))
 

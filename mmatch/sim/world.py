@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mmatch.sim.geometry import turned
+
 LANE_W = 3.5
 ROAD_HALF_LEN = 450.0
 # dense traffic: "LO-HI" other vehicles instead of the mode's 1-4 (easy) or 6-20 (hard); set by
@@ -167,10 +169,7 @@ def _rotate_seg(pts: np.ndarray, extra: float = 0.0) -> np.ndarray:
     `extra` rad more (an oblique junction)."""
     out = np.asarray(pts, float).copy()
     out[..., 0], out[..., 1] = -out[..., 1].copy(), out[..., 0].copy()
-    if extra:
-        c, s = np.cos(extra), np.sin(extra)
-        out[..., 0], out[..., 1] = c * out[..., 0] - s * out[..., 1], s * out[..., 0] + c * out[..., 1]
-    return out
+    return turned(out, extra) if extra else out
 
 
 def build_world(rng: np.random.Generator, mode: str) -> World:
@@ -379,9 +378,7 @@ def _junction_skew(rng: np.random.Generator) -> float:
 def _skew_cross_traffic(vehicles: Vehicles, skew: float) -> None:
     """Turn the vehicles on the cross road (those driving along x) about the junction by skew."""
     along_x = np.abs(np.sin(vehicles.yaw)) < np.sin(np.radians(20.0))
-    c, s = np.cos(skew), np.sin(skew)
-    p = vehicles.pos0[along_x]
-    vehicles.pos0[along_x] = np.column_stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]])
+    vehicles.pos0[along_x] = turned(vehicles.pos0[along_x], skew)
     vehicles.yaw[along_x] += skew
 
 
