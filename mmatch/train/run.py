@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import textwrap
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -91,6 +92,7 @@ def train(req: TrainRequest) -> dict:
     net, history = fit(tr, val, cfg, Bar("train"), on_epoch)
     hist = [{k: v for k, v in asdict(h).items() if k not in ("pos_scores", "neg_scores")} for h in history]
     (out / "history.json").write_text(json.dumps(hist, indent=2))
+    torch.save(net.state_dict(), out / "rmnet.pt")      # the weights, to export again when the graph code changes
     export = Path(req.export) if req.export else out / "rmnet.onnx"
     export_onnx(net, export)
     worst = agreement(net, export, AGREEMENT_SIZES)
@@ -129,6 +131,15 @@ def _augment_line(a: dict | None) -> str:
             f"with random histograms up to {a['max_mix']} and one view's hues turned up to {a['max_hue_bins']} bins;")
 
 
+def _reexport_line(r: dict | None) -> str:
+    if not r:
+        return ""
+    return textwrap.fill(f"- Re-exported {r['date']} from the same weights with a leaner graph ({r['why']}): "
+                         f"{r['nodes_before']} -> {r['nodes']} ONNX nodes; the two files' outputs on random graphs "
+                         f"of 2-40 vehicles a side differ by at most {r['max_abs_vs_before']:.1e}.",
+                         100, subsequent_indent="  ") + "\n"
+
+
 def write_card(path: Path, card: dict) -> None:
     """The model card: what the model was trained on, how, and how it scored (Markdown + JSON block)."""
     d, t, v = card["data"], card["training"], card["validation"]
@@ -152,7 +163,7 @@ mmatch/train/model.py). Written by `mmatch train`; inputs and shapes in mmatch/e
 - Validation (last step, mutual-best pairs above 0.5, no geometry): precision {v['precision']:.3f},
   recall {v['recall']:.3f}, F1 {v['f1']:.3f}; true partner within a vehicle's top 3: {v['top3_recall']:.3f}.
 - torch vs ONNX Runtime on random graphs of 2-40 vehicles a side: max |difference| {card['agreement_max_abs']:.1e}.
-
+{_reexport_line(card.get('reexport'))}
 ```json
 {json.dumps(card, indent=2)}
 ```
