@@ -265,6 +265,50 @@ def test_a_turning_radar_is_a_manoeuvre_that_searches_and_loosens_the_yaw_rate()
     assert velocity_heading_yaws(w.frame("ego", t, True), turning) is not None
 
 
+def test_a_turn_is_a_manoeuvre_from_its_start_to_its_end_however_many_searches_it_takes():
+    """In a steady turn the radar's velocity holds its sideways offset: the frames of the whole
+    turn are manoeuvres (each searches globally) until the velocity swings back; one that lasts
+    longer than manoeuvre_max_s ends, its direction the new reference (a long curve). The yaw
+    rate is made uncertain only where it changes: when the turn begins and when it ends."""
+    from dataclasses import replace
+
+    w = World()
+    cfg = TrackConfig(max_age_s=2.0, full_search_every=10, manoeuvre_max_s=1.0)
+    tr = Tracker(cfg)
+
+    def frame_pair(t: float, v_cav: np.ndarray) -> tuple[SharedFrame, SharedFrame]:
+        return w.frame("ego", t, True), replace(w.frame("cav", t, True), ego_velocity=v_cav)
+
+    straight, turning = w.v_cav, np.array([-1.5, 9.0])           # 9.5 deg sideways in the turn
+    t = 1.0
+    for _ in range(3):
+        own, oth = frame_pair(t, straight)
+        assert not tr.predict(own, oth).manoeuvre
+        _commit(tr, own, oth, w.truth(t, t), p=0.95)
+        t += 0.05
+    for k in range(8):                                           # 0.4 s of steady turning
+        own, oth = frame_pair(t, turning)
+        before = tr.track("cav").best().P[4, 4]
+        pred = tr.predict(own, oth)
+        assert pred.manoeuvre and not tr.tracking_only(pred)
+        loosened = pred.track.best().P[4, 4] - before >= cfg.manoeuvre_yaw_rate_sigma ** 2 - 1e-9
+        assert loosened == (k == 0)                              # the CAV's yaw rate: where the turn begins
+        _commit(tr, own, oth, w.truth(t, t), p=0.95)             # a full search: as in fusion
+        t += 0.05
+    for expected in (True, False):          # out of the turn: the yaw rate changes once more, then no more
+        own, oth = frame_pair(t, straight)
+        assert tr.predict(own, oth).manoeuvre == expected
+        _commit(tr, own, oth, w.truth(t, t), p=0.95)
+        t += 0.05
+    flags = []
+    for _ in range(30):                                          # 1.5 s in one long curve
+        own, oth = frame_pair(t, turning)
+        flags.append(tr.predict(own, oth).manoeuvre)
+        _commit(tr, own, oth, w.truth(t, t), p=0.95)
+        t += 0.05
+    assert all(flags[:20]) and not any(flags[-5:])
+
+
 def test_one_fusion_remembers_the_directions_of_travel_per_heading_prior_setting():
     """The velocity angles are computed once per frame pair inside a fusion, but a block without
     the heading prior never sees the ones with it (nor the other way round)."""

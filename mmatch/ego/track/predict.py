@@ -34,12 +34,17 @@ class TrackConfig:
     wrong, when a confirming frame published a track at its belief; since it is belief times
     spread, 0.9 against waiting is success 0.824 -> 0.834 there with 6 gross frames both);
     waiting for the second frame lost the first of nearly every drive; None: always wait);
-    manoeuvre_deg: a radar whose velocity direction in its own frame turned this far since the
-    last full search (while faster than manoeuvre_speed_mps) is changing its yaw rate (a radar
-    ahead of the rear axle sees its velocity swing sideways by yaw rate x lever arm); the
-    frame then searches globally and that vehicle's yaw rate is made uncertain by
-    manoeuvre_yaw_rate_sigma (rad/s): the constant-yaw-rate prediction no longer holds, and a
-    refinement seeded by it would follow it;
+    manoeuvre_deg: a radar whose velocity direction in its own frame lies this far from where it
+    pointed before the turn (while faster than manoeuvre_speed_mps) is turning (a radar ahead of
+    the rear axle sees its velocity swing sideways by yaw rate x lever arm, and hold that offset
+    through a steady turn); every such frame searches globally without the road-direction prior
+    (a turning vehicle's velocity tells no road), and where the direction changed since the last
+    full search (a turn begins or ends) that vehicle's yaw rate is made uncertain by
+    manoeuvre_yaw_rate_sigma (rad/s): the constant-yaw-rate prediction no longer holds there.
+    Until 2026-12-06 (late) one reference, reset by every full search, served both, so only a
+    turn's first frames searched: through a steady turn the track then kept its yaw while the
+    truth turned 1.5-1.8 deg a frame (README, Over time); manoeuvre_max_s: a turn this long (s)
+    ends, its direction then the new reference (a drive that began in a turn, a long curve);
     defer_search: the regular full search of a believed track runs after the frame's result
     (`Fuser.run_deferred`, which the vehicle service calls once it has published): that frame
     publishes the refined prediction as any tracking frame, and the search's candidates then
@@ -60,6 +65,7 @@ class TrackConfig:
     manoeuvre_deg: float = 3.0
     manoeuvre_speed_mps: float = 2.0
     manoeuvre_yaw_rate_sigma: float = 0.4
+    manoeuvre_max_s: float = 5.0
     filter: FilterConfig = field(default_factory=FilterConfig)
 
 
@@ -104,24 +110,45 @@ class Tracker:
         hyps = [predict_hypothesis(h, v_own, v_other, dt_own, dt_other, self.cfg.filter) for h in tr.hypotheses]
         moved = PoseTrack(hyps, float(own.stamp), float(other.stamp), velocity_of(own), velocity_of(other),
                           tr.since_full, tr.frames, dict(tr.extra))
-        turning = self._manoeuvres(moved)
+        turning, changing = self._manoeuvres(moved)
+        moved.extra["turning"] = turning
         for h in hyps:
-            for k in np.flatnonzero(turning):
+            for k in np.flatnonzero(changing):
                 h.P[3 + k, 3 + k] += self.cfg.manoeuvre_yaw_rate_sigma ** 2
         best = moved.best()
         prior = best.T if best is not None and best.belief >= self.cfg.prior_belief else None
-        return Prediction(moved, dt_own, dt_other, prior, bool(turning.any()))
+        return Prediction(moved, dt_own, dt_other, prior, bool(turning.any() or changing.any()))
 
-    def _manoeuvres(self, track: PoseTrack) -> np.ndarray:
-        """(2,) bool: whether the Ego's / the CAV's radar velocity turned more than manoeuvre_deg
-        in its own frame since the reference the last full search left (track.extra["heading"])."""
-        ref = track.extra.get("heading")
+    def _manoeuvres(self, track: PoseTrack) -> tuple[np.ndarray, np.ndarray]:
+        """(turning (2,), changing (2,)) bool for the Ego's and the CAV's radar. A radar ahead of the
+        rear axle sees its velocity swing sideways by yaw rate x lever arm when a turn begins,
+        hold that offset through a steady turn and swing back when it ends. Turning: its
+        velocity points more than manoeuvre_deg away, in its own frame, from where it pointed
+        before the turn (track.extra["straight"], which a full search sets for a radar that is
+        not turning); the whole turn counts, and one longer than manoeuvre_max_s (the Ego's
+        clock) ends, its direction then the new reference (a drive that began in a turn, a long
+        curve). Changing: it turned that far since the last full search (track.extra["heading"]):
+        the yaw rate is changing."""
         now = _headings(track)
-        if ref is None:
-            return np.zeros(2, bool)
-        gap = np.degrees(np.abs((now - ref + np.pi) % (2 * np.pi) - np.pi))
         fast = np.array([np.hypot(*track.v_own), np.hypot(*track.v_other)]) >= self.cfg.manoeuvre_speed_mps
-        return fast & np.isfinite(ref) & (gap > self.cfg.manoeuvre_deg)
+
+        def away(ref: np.ndarray | None) -> np.ndarray:
+            if ref is None:
+                return np.zeros(2, bool)
+            gap = np.degrees(np.abs((now - ref + np.pi) % (2 * np.pi) - np.pi))
+            return fast & np.isfinite(ref) & (gap > self.cfg.manoeuvre_deg)
+
+        changing = away(track.extra.get("heading"))
+        straight = track.extra.get("straight")
+        turning = away(straight)
+        since = np.asarray(track.extra.get("turning_since", np.full(2, np.nan)), float)
+        since = np.where(turning, np.where(np.isfinite(since), since, track.own_stamp), np.nan)
+        expired = turning & (track.own_stamp - since > self.cfg.manoeuvre_max_s)
+        if expired.any():
+            track.extra["straight"] = np.where(expired, now, straight)
+            turning, since = turning & ~expired, np.where(expired, np.nan, since)
+        track.extra["turning_since"] = since
+        return turning, changing
 
     def agrees(self, T: np.ndarray, other_T: np.ndarray | None) -> bool:
         """Whether two transforms (4x4) lie within agree_m / agree_deg of each other."""
@@ -174,7 +201,12 @@ class Tracker:
         track.frames += 1
         if full_search:
             track.since_full = 1
-            track.extra["heading"] = _headings(track)
+            now = _headings(track)
+            track.extra["heading"] = now
+            # a turning radar keeps the direction it had before the turn as its reference
+            ref = track.extra.get("straight")
+            turning = np.asarray(track.extra.get("turning", np.zeros(2, bool)), bool)
+            track.extra["straight"] = now if ref is None else np.where(turning, ref, now)
         elif hit and max((c.p for c in candidates), default=0.0) >= self.cfg.quick_fit:
             track.since_full += 1
         else:
