@@ -195,7 +195,9 @@ def test_an_attacker_without_the_fleet_keys_cannot_stall_or_fool_the_ego(tmp_pat
     # how many are fused depends on what the simulated world shows in that window, not on the
     # attack); its latency (its own, capture to publish) is judged on the median: on 2 cores
     # shared with the CAV and this process's attacker both median and p99 are the machine's
-    # (medians 13-44 ms, p99 37-172 ms over 15 runs of one world on one day); the printed p99
-    # is the figure to read on a quiet machine
+    # (medians 13-44 ms, p99 37-172 ms over 15 runs of one world on one day; 27-57 ms over 11
+    # runs on 2026-12-06 with nothing else running, calm medians 21-25 ms, 2 of them above the
+    # bound of max(50, 2 x calm) used until then); the printed p99 is the figure to read on a
+    # quiet machine. A stalled Ego shows hundreds of ms here and falls below the rate above.
     assert flood["results_per_s"] >= min(18.0, 0.9 * calm["results_per_s"])
-    assert flood["median_ms"] <= max(50.0, 2.0 * calm["median_ms"])
+    assert flood["median_ms"] <= max(60.0, 2.5 * calm["median_ms"])
