@@ -2,9 +2,9 @@
 
 Needs the `train` extra (`pip install -r requirements-train.txt`: PyTorch, CPU build).
 Writes into --out: config.json, history.json, figures/epoch_NNN.png (one per epoch), rmnet.pt
-(the torch weights, `RMNet.load_state_dict`) and the exported model with its card (--export, default OUT/rmnet.onnx; the card is the same name
-with .md). `mmatch train --out DIR --export mmatch/models/rmnet.onnx` replaces the model the
-package ships.
+(the torch weights, `RMNet.load_state_dict`) and the exported model with its card (--export,
+default OUT/rmnet.onnx; the card is the same name with .md). `mmatch train --out DIR --export
+mmatch/models/rmnet.onnx` replaces the model the package ships.
 """
 
 from __future__ import annotations

@@ -107,8 +107,9 @@ class Step(nn.Module):
             (lia, lja, mha, pea, qa, xha), (lib, ljb, mhb, peb, qb, xhb) = pa, pb
         ea, agg_a = self._local(ea, lia, lja, mha, na, la)
         eb, agg_b = self._local(eb, lib, ljb, mhb, nb, lb)
-        # c None: the cross edges' zero start (ce(0) is ce's bias; the same numbers, fewer operations)
-        z = torch.relu((self.ce.bias if c is None else self.ce(c)) + pea.unsqueeze(2) + peb.unsqueeze(1)
+        # c None: the cross edges' zero start (ce(0) is ce's bias: same numbers, fewer operations)
+        start = self.ce.bias if c is None else self.ce(c)
+        z = torch.relu(start + pea.unsqueeze(2) + peb.unsqueeze(1)
                        + qa.unsqueeze(2) * qb.unsqueeze(1))
         c = _masked(self.co(z), mab) if c is None else c + _masked(self.co(z), mab)
         if self.last:
@@ -135,7 +136,8 @@ class RMNet(nn.Module):
 
     def forward(self, xa, xb, ea, eb, na, nb, la=None, lb=None, ma=None, mb=None,
                 all_steps: bool = True) -> list[torch.Tensor]:
-        """Logits (B, Va, Vb) after each step (or the last only); pairs with a padded vehicle get NEG.
+        """Logits (B, Va, Vb) after each step (or the last only); pairs with a padded vehicle get
+        NEG.
 
         Masks None: every vehicle and local edge is real (one unpadded frame pair, what the ONNX
         file computes): the same numbers without the masks' operations."""
@@ -150,7 +152,9 @@ class RMNet(nn.Module):
             ha, hb, ea, eb, c = layer(ha, hb, ea, eb, c, na, nb, la, lb, mab)
             if all_steps or k == self.steps - 1:
                 logit = self.classify(c).squeeze(-1)
-                out.append(logit if mab is None else torch.where(mab > 0, logit, torch.full_like(logit, NEG)))
+                if mab is not None:
+                    logit = torch.where(mab > 0, logit, torch.full_like(logit, NEG))
+                out.append(logit)
         return out
 
 
@@ -167,8 +171,8 @@ class RMNetExport(nn.Module):
         self.net = net
 
     def forward(self, x_own, x_other, e_own, e_other, n_own, n_other):
-        logit = self.net(x_own.unsqueeze(0), x_other.unsqueeze(0), e_own.unsqueeze(0), e_other.unsqueeze(0),
-                         n_own.unsqueeze(0), n_other.unsqueeze(0), all_steps=False)[-1]
+        inputs = (x_own, x_other, e_own, e_other, n_own, n_other)
+        logit = self.net(*(t.unsqueeze(0) for t in inputs), all_steps=False)[-1]
         return torch.sigmoid(logit[0])
 
 

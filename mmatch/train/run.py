@@ -92,7 +92,7 @@ def train(req: TrainRequest) -> dict:
     net, history = fit(tr, val, cfg, Bar("train"), on_epoch)
     hist = [{k: v for k, v in asdict(h).items() if k not in ("pos_scores", "neg_scores")} for h in history]
     (out / "history.json").write_text(json.dumps(hist, indent=2))
-    torch.save(net.state_dict(), out / "rmnet.pt")      # the weights, to export again when the graph code changes
+    torch.save(net.state_dict(), out / "rmnet.pt")      # to export again when the graph changes
     export = Path(req.export) if req.export else out / "rmnet.onnx"
     export_onnx(net, export)
     worst = agreement(net, export, AGREEMENT_SIZES)
@@ -134,10 +134,10 @@ def _augment_line(a: dict | None) -> str:
 def _reexport_line(r: dict | None) -> str:
     if not r:
         return ""
-    return textwrap.fill(f"- Re-exported {r['date']} from the same weights with a leaner graph ({r['why']}): "
-                         f"{r['nodes_before']} -> {r['nodes']} ONNX nodes; the two files' outputs on random graphs "
-                         f"of 2-40 vehicles a side differ by at most {r['max_abs_vs_before']:.1e}.",
-                         100, subsequent_indent="  ") + "\n"
+    text = (f"- Re-exported {r['date']} from the same weights with a leaner graph ({r['why']}): "
+            f"{r['nodes_before']} -> {r['nodes']} ONNX nodes; the two files' outputs on random "
+            f"graphs of 2-40 vehicles a side differ by at most {r['max_abs_vs_before']:.1e}.")
+    return textwrap.fill(text, 100, subsequent_indent="  ") + "\n"
 
 
 def write_card(path: Path, card: dict) -> None:

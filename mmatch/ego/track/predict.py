@@ -120,8 +120,8 @@ class Tracker:
         return Prediction(moved, dt_own, dt_other, prior, bool(turning.any() or changing.any()))
 
     def _manoeuvres(self, track: PoseTrack) -> tuple[np.ndarray, np.ndarray]:
-        """(turning (2,), changing (2,)) bool for the Ego's and the CAV's radar. A radar ahead of the
-        rear axle sees its velocity swing sideways by yaw rate x lever arm when a turn begins,
+        """(turning (2,), changing (2,)) bool for the Ego's and the CAV's radar. A radar ahead of
+        the rear axle sees its velocity swing sideways by yaw rate x lever arm when a turn begins,
         hold that offset through a steady turn and swing back when it ends. Turning: its
         velocity points more than manoeuvre_deg away, in its own frame, from where it pointed
         before the turn (track.extra["straight"], which a full search sets for a radar that is
