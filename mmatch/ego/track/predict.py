@@ -72,13 +72,16 @@ class TrackConfig:
 @dataclass
 class Prediction:
     """A CAV's track moved to a new frame pair (not yet committed): the track (or None when
-    there was none), the elapsed times (s) and the prior for the matcher (4x4 or None)."""
+    there was none), the elapsed times (s) and the prior for the matcher (4x4 or None);
+    manoeuvre: a radar is turning or its yaw rate changing (`Tracker._manoeuvres`); turning
+    (2,): which of the Ego's and the CAV's radars is turning (`commit` keeps their references)."""
 
     track: PoseTrack | None
     dt_own: float
     dt_other: float
     prior_T: np.ndarray | None
     manoeuvre: bool = False
+    turning: np.ndarray = field(default_factory=lambda: np.zeros(2, bool))
 
 
 class Tracker:
@@ -111,13 +114,12 @@ class Tracker:
         moved = PoseTrack(hyps, float(own.stamp), float(other.stamp), velocity_of(own), velocity_of(other),
                           tr.since_full, tr.frames, dict(tr.extra))
         turning, changing = self._manoeuvres(moved)
-        moved.extra["turning"] = turning
         for h in hyps:
             for k in np.flatnonzero(changing):
                 h.P[3 + k, 3 + k] += self.cfg.manoeuvre_yaw_rate_sigma ** 2
         best = moved.best()
         prior = best.T if best is not None and best.belief >= self.cfg.prior_belief else None
-        return Prediction(moved, dt_own, dt_other, prior, bool(turning.any() or changing.any()))
+        return Prediction(moved, dt_own, dt_other, prior, bool(turning.any() or changing.any()), turning)
 
     def _manoeuvres(self, track: PoseTrack) -> tuple[np.ndarray, np.ndarray]:
         """(turning (2,), changing (2,)) bool for the Ego's and the CAV's radar. A radar ahead of
@@ -205,8 +207,7 @@ class Tracker:
             track.extra["heading"] = now
             # a turning radar keeps the direction it had before the turn as its reference
             ref = track.extra.get("straight")
-            turning = np.asarray(track.extra.get("turning", np.zeros(2, bool)), bool)
-            track.extra["straight"] = now if ref is None else np.where(turning, ref, now)
+            track.extra["straight"] = now if ref is None else np.where(pred.turning, ref, now)
         elif hit and max((c.p for c in candidates), default=0.0) >= self.cfg.quick_fit:
             track.since_full += 1
         else:
