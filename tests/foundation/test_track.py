@@ -94,6 +94,28 @@ def _commit(tr: Tracker, own: SharedFrame, oth: SharedFrame, T: np.ndarray, p: f
     return tr.commit(own, oth, pred, [Candidate(pose_of(T), cov, p)], full_search=True)
 
 
+def _straight_start(w: "World", tr: Tracker) -> float:
+    """Three frames of a believed track on the straight drive from t = 1 s; returns the next t."""
+    t = 1.0
+    for _ in range(3):
+        own, oth = w.frame("ego", t, True), w.frame("cav", t, True)
+        _commit(tr, own, oth, w.truth(t, t), p=0.95)
+        t += 0.05
+    return t
+
+
+def _born_in_turn(w: "World", tr: Tracker, t: float, turning: np.ndarray, cov: np.ndarray) -> list:
+    """A sure candidate 8 m off the track at t (a distinct pose: a new hypothesis) while the CAV
+    turns; the hypotheses of one frame predicted to the next."""
+    from dataclasses import replace
+
+    own, oth = w.frame("ego", t, True), replace(w.frame("cav", t, True), ego_velocity=turning)
+    far = Candidate(pose_of(w.truth(t, t)) + [8.0, 0.0, 0.0], cov, 0.99)
+    tr.commit(own, oth, tr.predict(own, oth), [far], full_search=True)
+    own, oth = w.frame("ego", t + 0.05, True), replace(w.frame("cav", t + 0.05, True), ego_velocity=turning)
+    return [h for h in tr.predict(own, oth).track.hypotheses if h.hits == 1]
+
+
 def test_prediction_follows_both_radars_motion():
     w = World()
     tr = Tracker(TrackConfig(max_age_s=2.0))
@@ -238,7 +260,7 @@ def test_a_turning_radar_is_a_manoeuvre_that_searches_and_loosens_the_yaw_rate()
     from mmatch.ego.base import heading_yaws, velocity_heading_yaws, without_heading_prior
 
     w = World()
-    cfg = TrackConfig(max_age_s=2.0, full_search_every=10)
+    cfg = TrackConfig(max_age_s=2.0, full_search_every=10, lever_arm_m=0.0)   # the loosening alone
     tr = Tracker(cfg)
     rng = np.random.default_rng(3)
     for k in range(4):                                           # straight, 0.1 m/s velocity noise
@@ -273,7 +295,7 @@ def test_a_turn_is_a_manoeuvre_from_its_start_to_its_end_however_many_searches_i
     from dataclasses import replace
 
     w = World()
-    cfg = TrackConfig(max_age_s=2.0, full_search_every=10, manoeuvre_max_s=1.0)
+    cfg = TrackConfig(max_age_s=2.0, full_search_every=10, manoeuvre_max_s=1.0, lever_arm_m=0.0)
     tr = Tracker(cfg)
 
     def frame_pair(t: float, v_cav: np.ndarray) -> tuple[SharedFrame, SharedFrame]:
@@ -307,6 +329,80 @@ def test_a_turn_is_a_manoeuvre_from_its_start_to_its_end_however_many_searches_i
         _commit(tr, own, oth, w.truth(t, t), p=0.95)
         t += 0.05
     assert all(flags[:20]) and not any(flags[-5:])
+
+
+def test_through_a_turn_with_nothing_in_common_the_track_turns_at_the_rate_the_sideways_velocity_implies():
+    """A radar lever_arm_m ahead of its rear axle moves sideways at yaw rate x lever arm: a track
+    that coasts through the CAV's turn (no candidates) turns with it, its yaw rate moved towards
+    v sin(offset) / lever_arm_m (weighed once against what it knew: here, where the turn began,
+    two thirds of the way) instead of keeping the one it had; the Ego, going straight, keeps
+    its own; off (0), the track coasts straight on."""
+    from dataclasses import replace
+
+    w = World()
+    offset = np.radians(10.0)
+    turning = _rot(10.0) @ w.v_cav                              # swung left: a left (CCW) turn
+    rate = np.hypot(*w.v_cav) * np.sin(offset) / TrackConfig().lever_arm_m
+    yaws = {}
+    for arm in (TrackConfig().lever_arm_m, 0.0):
+        tr = Tracker(TrackConfig(max_age_s=2.0, lever_arm_m=arm))
+        t = _straight_start(w, tr)
+        start = tr.track("cav").best().x[2]
+        for _ in range(10):                                      # 0.5 s, nothing in common
+            own, oth = w.frame("ego", t, True), replace(w.frame("cav", t, True), ego_velocity=turning)
+            pred = tr.predict(own, oth)
+            assert pred.turning.tolist() == [False, True]
+            tr.commit(own, oth, pred, [], full_search=True)
+            t += 0.05
+        best = tr.track("cav").best()
+        yaws[arm] = best.x[2] - start
+        if arm:
+            assert 0.5 * rate < best.x[4] < 1.05 * rate and abs(best.x[3]) < 0.02
+    assert 0.4 * rate * 0.5 < yaws[TrackConfig().lever_arm_m] < 1.05 * rate * 0.5
+    assert abs(yaws[0.0]) < 0.02
+
+
+def test_a_hypothesis_born_in_a_turn_takes_the_turn_rate_and_not_its_guess_of_none():
+    """A new hypothesis starts at yaw rate 0, sure of it to `yaw_rate_sigma0` (vehicles mostly
+    drive straight); one born in the CAV's turn (a track re-acquired there) takes the rate the
+    sideways velocity implies on the next frames instead of keeping that guess."""
+    from dataclasses import replace
+
+    w = World()
+    turning = _rot(-10.0) @ w.v_cav                             # a right (clockwise) turn
+    rate = -np.hypot(*w.v_cav) * np.sin(np.radians(10.0)) / TrackConfig().lever_arm_m
+    tr = Tracker(TrackConfig(max_age_s=2.0))
+    t = _straight_start(w, tr)
+    own, oth = w.frame("ego", t, True), replace(w.frame("cav", t, True), ego_velocity=turning)
+    tr.commit(own, oth, tr.predict(own, oth), [], full_search=True)
+    born = _born_in_turn(w, tr, t, turning, np.diag([0.3, 0.3, np.radians(1.0)]) ** 2)
+    assert len(born) == 1 and abs(born[0].x[4] - rate) < 1e-9
+    assert np.sqrt(born[0].P[4, 4]) == pytest.approx(TrackConfig().lever_arm_spread * abs(rate) + 0.05)
+
+
+def test_a_turn_the_candidates_measure_teaches_the_track_the_radar_s_lever_arm():
+    """The CAV's radar sits 2 m ahead of its axle, not the 3 m the tracker assumes: candidates
+    that measure its turn teach the track that lever arm (sideways speed / yaw rate), and a
+    hypothesis born later in the turn takes the turn's rate, not the two thirds of it 3 m
+    implies."""
+    from dataclasses import replace
+
+    w = World()
+    offset, arm = np.radians(10.0), 2.0
+    turning = _rot(10.0) @ w.v_cav
+    rate = np.hypot(*w.v_cav) * np.sin(offset) / arm
+    tr = Tracker(TrackConfig(max_age_s=2.0))
+    t = _straight_start(w, tr)
+    t0, cov = t, np.diag([0.2, 0.2, np.radians(0.5)]) ** 2
+    for _ in range(12):                                          # 0.6 s of a measured turn
+        own, oth = w.frame("ego", t, True), replace(w.frame("cav", t, True), ego_velocity=turning)
+        z = pose_of(w.truth(t, t)) + [0.0, 0.0, rate * (t - t0)]
+        tr.commit(own, oth, tr.predict(own, oth), [Candidate(z, cov, 0.95)], full_search=True)
+        t += 0.05
+    learnt = tr.track("cav").extra["lever"]
+    assert np.isnan(learnt[0]) and abs(learnt[1] - arm) < 0.3
+    born = _born_in_turn(w, tr, t, turning, cov)
+    assert len(born) == 1 and abs(born[0].x[4] - rate) < 0.15 * rate
 
 
 def test_one_fusion_remembers_the_directions_of_travel_per_heading_prior_setting():
