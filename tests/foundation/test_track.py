@@ -112,7 +112,8 @@ def _born_in_turn(w: "World", tr: Tracker, t: float, turning: np.ndarray, cov: n
     own, oth = w.frame("ego", t, True), replace(w.frame("cav", t, True), ego_velocity=turning)
     far = Candidate(pose_of(w.truth(t, t)) + [8.0, 0.0, 0.0], cov, 0.99)
     tr.commit(own, oth, tr.predict(own, oth), [far], full_search=True)
-    own, oth = w.frame("ego", t + 0.05, True), replace(w.frame("cav", t + 0.05, True), ego_velocity=turning)
+    t += 0.05
+    own, oth = w.frame("ego", t, True), replace(w.frame("cav", t, True), ego_velocity=turning)
     return [h for h in tr.predict(own, oth).track.hypotheses if h.hits == 1]
 
 
@@ -331,7 +332,7 @@ def test_a_turn_is_a_manoeuvre_from_its_start_to_its_end_however_many_searches_i
     assert all(flags[:20]) and not any(flags[-5:])
 
 
-def test_through_a_turn_with_nothing_in_common_the_track_turns_at_the_rate_the_sideways_velocity_implies():
+def test_through_a_turn_with_nothing_in_common_the_track_turns_as_the_sideways_velocity_says():
     """A radar lever_arm_m ahead of its rear axle moves sideways at yaw rate x lever arm: a track
     that coasts through the CAV's turn (no candidates) turns with it, its yaw rate moved towards
     v sin(offset) / lever_arm_m (weighed once against what it knew: here, where the turn began,
@@ -349,7 +350,8 @@ def test_through_a_turn_with_nothing_in_common_the_track_turns_at_the_rate_the_s
         t = _straight_start(w, tr)
         start = tr.track("cav").best().x[2]
         for _ in range(10):                                      # 0.5 s, nothing in common
-            own, oth = w.frame("ego", t, True), replace(w.frame("cav", t, True), ego_velocity=turning)
+            own = w.frame("ego", t, True)
+            oth = replace(w.frame("cav", t, True), ego_velocity=turning)
             pred = tr.predict(own, oth)
             assert pred.turning.tolist() == [False, True]
             tr.commit(own, oth, pred, [], full_search=True)
@@ -377,7 +379,8 @@ def test_a_hypothesis_born_in_a_turn_takes_the_turn_rate_and_not_its_guess_of_no
     tr.commit(own, oth, tr.predict(own, oth), [], full_search=True)
     born = _born_in_turn(w, tr, t, turning, np.diag([0.3, 0.3, np.radians(1.0)]) ** 2)
     assert len(born) == 1 and abs(born[0].x[4] - rate) < 1e-9
-    assert np.sqrt(born[0].P[4, 4]) == pytest.approx(TrackConfig().lever_arm_spread * abs(rate) + 0.05)
+    bound = TrackConfig().lever_arm_spread * abs(rate) + 0.05
+    assert np.sqrt(born[0].P[4, 4]) == pytest.approx(bound)
 
 
 def test_a_turn_the_candidates_measure_teaches_the_track_the_radar_s_lever_arm():

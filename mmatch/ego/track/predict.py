@@ -177,7 +177,8 @@ class Tracker:
         lever = np.array(track.extra.get("lever", np.full(2, np.nan)), float)
         for k in np.flatnonzero(turning):
             rate, sd = best.x[3 + k], np.sqrt(best.P[3 + k, 3 + k])
-            if abs(rate) < 0.1 or sd > self.cfg.lever_arm_learn_within * abs(rate) or lateral[k] * rate <= 0:
+            sure = abs(rate) >= 0.1 and sd <= self.cfg.lever_arm_learn_within * abs(rate)
+            if not (sure and lateral[k] * rate > 0):         # a NaN sideways speed: nothing
                 continue
             arm = float(np.clip(lateral[k] / rate, 1.0, 6.0))
             lever[k] = arm if not np.isfinite(lever[k]) else 0.8 * lever[k] + 0.2 * arm
