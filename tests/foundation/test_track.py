@@ -7,6 +7,7 @@ import pytest
 
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.track import TrackConfig, Tracker
+from mmatch.ego.track.predict import MAX_YAW_RATE
 from mmatch.ego.track.filter import Candidate, pose_of, within_success
 from mmatch.fusion import Fuser, FusionConfig
 from mmatch.metrics import rre_deg, rte_m
@@ -381,6 +382,9 @@ def test_a_hypothesis_born_in_a_turn_takes_the_turn_rate_and_not_its_guess_of_no
     assert len(born) == 1 and abs(born[0].x[4] - rate) < 1e-9
     bound = TrackConfig().lever_arm_spread * abs(rate) + 0.05
     assert np.sqrt(born[0].P[4, 4]) == pytest.approx(bound)
+    # a garbled velocity (300 m/s, 10 deg off: 17 rad/s at 3 m) sets no rate a car cannot turn at
+    born = _born_in_turn(w, tr, t + 0.1, turning * 33.0, np.diag([0.3, 0.3, np.radians(1.0)]) ** 2)
+    assert born and all(abs(h.x[4]) <= MAX_YAW_RATE for h in born)
 
 
 def test_a_turn_the_candidates_measure_teaches_the_track_the_radar_s_lever_arm():

@@ -21,6 +21,11 @@ from mmatch.ego.track.filter import (Candidate, FilterConfig, Hypothesis, PoseTr
 from mmatch.shared import SharedFrame
 
 
+# rad/s: no road vehicle turns faster (5 m/s on a 2.5 m radius); a sideways speed that implies
+# more (a garbled or forged velocity) is capped there
+MAX_YAW_RATE = 2.0
+
+
 @dataclass(frozen=True)
 class TrackConfig:
     """max_age_s: a track not updated for this long (either radar's clock) is dropped; 0: no
@@ -152,7 +157,8 @@ class Tracker:
         learnt = np.asarray(track.extra.get("lever", np.full(2, np.nan)), float)
         for k in np.flatnonzero(turning):
             known = np.isfinite(learnt[k])
-            rate = lateral[k] / (learnt[k] if known else self.cfg.lever_arm_m)
+            rate = float(np.clip(lateral[k] / (learnt[k] if known else self.cfg.lever_arm_m),
+                                 -MAX_YAW_RATE, MAX_YAW_RATE))
             spread = self.cfg.lever_arm_learnt_spread if known else self.cfg.lever_arm_spread
             var = (spread * abs(rate) + 0.05) ** 2
             i = 3 + k
