@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mmatch.ego.track.filter import (Candidate, FilterConfig, Hypothesis, PoseTrack, new_hypothesis, pose_of,
-                                     predict as predict_hypothesis, step, velocity_of)
+                                     predict as predict_hypothesis, step, velocity_of, wrap)
 from mmatch.shared import SharedFrame
 
 
@@ -201,12 +201,12 @@ class Tracker:
         curve). Changing: it turned that far since the last full search (track.extra["heading"]):
         the yaw rate is changing."""
         now = _headings(track)
-        fast = np.array([np.hypot(*track.v_own), np.hypot(*track.v_other)]) >= self.cfg.manoeuvre_speed_mps
+        fast = _speeds(track) >= self.cfg.manoeuvre_speed_mps
 
         def away(ref: np.ndarray | None) -> np.ndarray:
             if ref is None:
                 return np.zeros(2, bool)
-            gap = np.degrees(np.abs((now - ref + np.pi) % (2 * np.pi) - np.pi))
+            gap = np.degrees(np.abs(wrap(now - ref)))
             return fast & np.isfinite(ref) & (gap > self.cfg.manoeuvre_deg)
 
         changing = away(track.extra.get("heading"))
@@ -226,8 +226,8 @@ class Tracker:
         if other_T is None:
             return False
         d = np.linalg.norm(T[:2, 3] - other_T[:2, 3])
-        yaw = np.degrees(abs((np.arctan2(T[1, 0], T[0, 0]) - np.arctan2(other_T[1, 0], other_T[0, 0])
-                              + np.pi) % (2 * np.pi) - np.pi))
+        yaw = np.degrees(abs(wrap(np.arctan2(T[1, 0], T[0, 0])
+                                  - np.arctan2(other_T[1, 0], other_T[0, 0]))))
         return bool(d <= self.cfg.agree_m and yaw <= self.cfg.agree_deg)
 
     def tracking_only(self, pred: Prediction) -> bool:
@@ -310,9 +310,12 @@ def _sideways(track: PoseTrack) -> np.ndarray:
     straight = track.extra.get("straight")
     if straight is None:
         return np.full(2, np.nan)
-    speed = np.array([np.hypot(*track.v_own), np.hypot(*track.v_other)])
-    offset = (_headings(track) - straight + np.pi) % (2 * np.pi) - np.pi
-    return speed * np.sin(offset)
+    return _speeds(track) * np.sin(wrap(_headings(track) - straight))
+
+
+def _speeds(track: PoseTrack) -> np.ndarray:
+    """(2,) the Ego's and the CAV's radar speed over ground, m/s."""
+    return np.array([np.hypot(*track.v_own), np.hypot(*track.v_other)])
 
 
 def _headings(track: PoseTrack) -> np.ndarray:
