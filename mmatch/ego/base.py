@@ -167,7 +167,11 @@ FAR_SIDE = FarSideModel()
 def far_side_centres(frame: SharedFrame, model: FarSideModel = FAR_SIDE) -> np.ndarray:
     """(V, 2) vehicle centres with the near-face bias removed: vehicles with points are pushed
     along their bearing by `model.shifts` (FarSideModel); box-based centres already aim at the
-    centre and stay."""
+    centre and stay. Once per frame inside a fusion (ego/memo.py; read-only there)."""
+    return memo("far_side_centres", (frame,), lambda: _far_side_centres(frame, model), model)
+
+
+def _far_side_centres(frame: SharedFrame, model: FarSideModel) -> np.ndarray:
     c = vehicle_centroids(frame)
     norm = np.maximum(lengths(c), 1e-6)
     return c + (model.shifts(frame, c) / norm)[:, None] * c
