@@ -277,6 +277,10 @@ class Fuser:
         # by this frame or carried by prediction alone. Its belief alone, on a frame that
         # confirmed it, published a right track drifting 23 deg at 0.89 (yaw sigma 6 deg)
         confidence = float(hyp.belief * within_success(cov))
+        # ... and no surer than the established rival it overtook was wrong (TrackConfig.rival_memory_s)
+        ceiling = 1.0 - self.tracker.rival(other.sender, hyp)
+        contested = confidence > ceiling
+        confidence = min(confidence, ceiling)
         pairs = np.asarray(match.pairs, np.int32).reshape(-1, 2)
         if self._pairs_from_transform:
             pairs = self.matcher.pairs_under(own, other, T[:2, :2], T[:2, 3], match.descriptor_scale)
@@ -289,7 +293,8 @@ class Fuser:
         young = hyp.hits < tcfg.min_hits and (tcfg.sure_at_once is None or confidence < tcfg.sure_at_once)
         thr = self._track_threshold
         if confidence < thr or young:
-            reason = "unconfirmed" if young and confidence >= thr else (reason or "track not sure")
+            reason = "unconfirmed" if young and confidence >= thr else \
+                ("contested" if contested else (reason or "track not sure"))
             return FusionResult("no-estimate", reason, objects=own_objs, timings=timings,
                                 refused_T=T, **sure)
         return FusionResult("fused", "" if hit else "tracked", T, pairs, merge_objects(own, other, T, pairs),

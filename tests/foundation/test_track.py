@@ -8,7 +8,7 @@ import pytest
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.track import TrackConfig, Tracker
 from mmatch.ego.track.predict import MAX_YAW_RATE
-from mmatch.ego.track.filter import Candidate, pose_of, within_success
+from mmatch.ego.track.filter import Candidate, new_hypothesis, pose_of, within_success
 from mmatch.fusion import Fuser, FusionConfig
 from mmatch.metrics import rre_deg, rte_m
 from mmatch.shared import CANONICAL_FOCAL_PX, SharedFrame
@@ -467,3 +467,50 @@ def test_the_pose_filter_weighs_the_chosen_estimate_at_its_published_confidence(
     k = next(i for i, a in enumerate(chosen["all"]) if a.confidence == chosen["a"].confidence)
     assert ps[k] == pytest.approx(fuser._measured_confidence(chosen["a"], True)) and ps[k] > chosen["a"].confidence
     assert [p for i, p in enumerate(ps) if i != k] == [a.confidence for i, a in enumerate(chosen["all"]) if i != k]
+
+
+def test_a_hypothesis_that_overtook_an_established_rival_is_capped_by_the_rivals_belief():
+    """TrackConfig.rival_memory_s: after a slide overtakes a right track that frames had
+    confirmed, the slide's publication is capped by 1 - the belief the right one had, for
+    rival_memory_s (the evidence that made the right one believed was of the same kind)."""
+    w = World()
+    tr = Tracker(TrackConfig(max_age_s=2.0))
+    t = _straight_start(w, tr)
+    right = tr.track("cav").best()
+    assert right.hits >= 3 and right.belief >= 0.9
+    for _ in range(20):                              # full searches that find only a 12 m slide
+        own, oth = w.frame("ego", t, True), w.frame("cav", t, True)
+        slide = w.truth(t, t) @ se2_to_matrix(np.eye(2), np.array([0.0, 12.0]))
+        best, _ = _commit(tr, own, oth, slide, p=0.97)
+        t += 0.05
+        if best.uid != right.uid:
+            break
+    assert best.uid != right.uid and rte_m(w.truth(t - 0.05, t - 0.05), best.T) > 10
+    took_over = t - 0.05
+    assert tr.rival("cav", best) >= 0.9                # the right one was believed 0.9+ a moment ago
+    assert tr.rival("cav", tr.track("cav").best()) == tr.rival("cav", best)
+    while t < took_over + 1.2:                         # a second later the slide stands alone
+        own, oth = w.frame("ego", t, True), w.frame("cav", t, True)
+        best, _ = _commit(tr, own, oth, w.truth(t, t) @ se2_to_matrix(np.eye(2), np.array([0.0, 12.0])), p=0.97)
+        t += 0.05
+    assert all(h.uid == best.uid or h.belief < 0.5 for h in tr.track("cav").hypotheses)
+    assert tr.rival("cav", best) == 0.0
+    off = Tracker(TrackConfig(max_age_s=2.0, rival_memory_s=0.0))
+    _straight_start(w, off)
+    assert off.rival("cav", new_hypothesis(np.zeros(3), np.eye(3), 0.5, off.cfg.filter)) == 0.0
+
+
+def test_a_contested_track_is_refused_naming_it():
+    """The Fuser publishes a track's hypothesis at no more than 1 - its rival's recent belief
+    (`Tracker.rival`), and says "contested" when that alone refuses it."""
+    w = World()
+    fuser = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0)))
+    frames = list(w.drive(4))
+    for _, own, oth in frames[:3]:
+        res = fuser.fuse(own, oth)
+    assert res.status == "fused" and res.confidence > 0.8
+    track = fuser.tracker.track("cav")
+    track.beliefs.append((float(frames[2][1].stamp), -1, 0.6))   # a rival believed 0.6 just now
+    res = fuser.fuse(frames[3][1], frames[3][2])
+    assert res.status == "no-estimate" and res.reason == "contested"
+    assert res.confidence == pytest.approx(0.4) and res.refused_T is not None

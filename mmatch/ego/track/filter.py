@@ -35,6 +35,7 @@ Frames: Ego radar frame, metres, radians, seconds.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,6 +46,7 @@ from mmatch.shared import SharedFrame
 CHI2_3_999 = 16.266          # 99.9 % of chi-square, 3 dof
 SUCCESS_M, SUCCESS_RAD = 2.0, np.radians(5.0)
 _UNIT_NORMALS = np.random.default_rng(20240614).standard_normal((512, 2))
+_UIDS = itertools.count(1)
 
 
 @dataclass(frozen=True)
@@ -96,6 +98,8 @@ class Hypothesis:
     hit_now: bool = True
     score: float = 0.0                      # log-odds that it is the right one
     recent_R: np.ndarray | None = None      # mean measurement noise it took (3, 3), `_blend_noise`
+    uid: int = 0                            # which hypothesis this is, frame after frame (and
+                                            # through a merge that hands its score on)
 
     def covariance(self, cfg: "FilterConfig") -> np.ndarray:
         """(x, y, yaw) covariance to publish: the state's plus the share of the measurement noise
@@ -113,7 +117,7 @@ class Hypothesis:
 
     def copy(self) -> "Hypothesis":
         return Hypothesis(self.x.copy(), self.P.copy(), self.belief, self.hits, self.misses, self.hit_now,
-                          self.score, None if self.recent_R is None else self.recent_R.copy())
+                          self.score, None if self.recent_R is None else self.recent_R.copy(), self.uid)
 
 
 @dataclass
@@ -128,6 +132,9 @@ class PoseTrack:
     since_full: int = 0
     frames: int = 0
     extra: dict = field(default_factory=dict)
+    beliefs: list[tuple[float, int, float]] = field(default_factory=list)   # (Ego stamp s, uid,
+                                            # belief) of its established hypotheses, recent frames
+                                            # (`Tracker.rival`)
 
     def best(self) -> Hypothesis | None:
         return max(self.hypotheses, key=lambda h: h.belief, default=None)
@@ -263,7 +270,8 @@ def new_hypothesis(z: np.ndarray, Rm: np.ndarray, belief: float, cfg: FilterConf
     P[:3, :3] = Rm
     P[3, 3] = P[4, 4] = cfg.yaw_rate_sigma0 ** 2
     b = min(max(float(belief), 1e-3), 1 - 1e-3)
-    return Hypothesis(np.concatenate([z, [0.0, 0.0]]), P, b, score=float(np.log(b / (1 - b))), recent_R=Rm.copy())
+    return Hypothesis(np.concatenate([z, [0.0, 0.0]]), P, b, score=float(np.log(b / (1 - b))), recent_R=Rm.copy(),
+                      uid=next(_UIDS))
 
 
 @dataclass
@@ -376,7 +384,7 @@ def _merge(hyps: list[Hypothesis], cfg: FilterConfig) -> list[Hypothesis]:
         for i, o in enumerate(out):
             if not _distinct(o, h.x[:3], cfg):
                 if h.hit_now and not o.hit_now:
-                    h.score, h.hits = o.score, max(o.hits, h.hits)
+                    h.score, h.hits, h.uid = o.score, max(o.hits, h.hits), o.uid
                     out[i] = h
                 break
         else:

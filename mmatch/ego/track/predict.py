@@ -68,6 +68,14 @@ class TrackConfig:
     common through a turn coasted at the yaw rate it had, 1.5-2 deg a frame off (README, Over
     time); 3.0 m and the spreads are not fit to the drives (the simulator's cars sit near 2.1 m:
     learning is what closes the gap); lever_arm_m 0: off;
+    rival_memory_s, rival_hits, rival_belief: a hypothesis is published at no more than 1 - b
+    for rival_memory_s after another one that frames had confirmed rival_hits times was
+    believed b >= rival_belief (its evidence was of the same kind and it was wrong, or this
+    one is: frames of one drive are not independent, so a belief that swung once can swing
+    back). Without it a track that had lost a right pose to a slide onto the car in front of
+    the CAV, or a 180 deg flip, published it at 0.73-0.97 the frame it took over (README, Over
+    time); 1 s, 3 hits and 0.5 chosen on the tuning drives (seeds 400, 450, 460); rival_memory_s
+    0: off;
     filter: the pose filter's noise, gates and belief (ego/track/filter.py)."""
 
     max_age_s: float = 2.0
@@ -88,6 +96,9 @@ class TrackConfig:
     lever_arm_spread: float = 0.5
     lever_arm_learn_within: float = 0.2
     lever_arm_learnt_spread: float = 0.25
+    rival_memory_s: float = 1.0
+    rival_hits: int = 3
+    rival_belief: float = 0.5
     filter: FilterConfig = field(default_factory=FilterConfig)
 
 
@@ -134,7 +145,7 @@ class Tracker:
         v_other = (tr.v_other + velocity_of(other)) / 2
         hyps = [predict_hypothesis(h, v_own, v_other, dt_own, dt_other, self.cfg.filter) for h in tr.hypotheses]
         moved = PoseTrack(hyps, float(own.stamp), float(other.stamp), velocity_of(own), velocity_of(other),
-                          tr.since_full, tr.frames, dict(tr.extra))
+                          tr.since_full, tr.frames, dict(tr.extra), list(tr.beliefs))
         turning, changing = self._manoeuvres(moved)
         for h in hyps:
             for k in np.flatnonzero(changing):
@@ -270,6 +281,7 @@ class Tracker:
             track = PoseTrack([], float(own.stamp), float(other.stamp), velocity_of(own), velocity_of(other))
         hit = step(track, candidates, max(pred.dt_own, 0.0), self.cfg.filter, independent=full_search, view=view)
         track.frames += 1
+        self._remember_beliefs(track, float(own.stamp))
         if hit:
             self._learn_lever_arms(track, pred.turning)
         if full_search:
@@ -288,6 +300,21 @@ class Tracker:
             return None, False
         self._tracks[other.sender] = track
         return track.best(), hit
+
+    def _remember_beliefs(self, track: PoseTrack, stamp: float) -> None:
+        """Keep the beliefs of the track's established hypotheses over the last rival_memory_s."""
+        cfg = self.cfg
+        recent = [r for r in track.beliefs if r[0] >= stamp - cfg.rival_memory_s]
+        track.beliefs = recent + [(stamp, h.uid, h.belief) for h in track.hypotheses
+                                  if h.hits >= cfg.rival_hits and h.belief >= cfg.rival_belief]
+
+    def rival(self, sender: str, hyp: Hypothesis) -> float:
+        """The highest belief another established hypothesis of this CAV's track had over the
+        last rival_memory_s (0: none; see TrackConfig): `hyp` is published at no more than 1 - it."""
+        track = self._tracks.get(sender)
+        if track is None or self.cfg.rival_memory_s <= 0:
+            return 0.0
+        return max((b for _, uid, b in track.beliefs if uid != hyp.uid), default=0.0)
 
     def force(self, own: SharedFrame, other: SharedFrame, T: np.ndarray, belief: float = 0.99) -> None:
         """Replace a CAV's track by a single hypothesis at T (4x4) believed `belief` (tests and
