@@ -279,7 +279,7 @@ class Fuser:
         confidence = float(hyp.belief * within_success(cov))
         # ... and no surer than the established rival it overtook was wrong (TrackConfig.rival_memory_s)
         ceiling = 1.0 - self.tracker.rival(other.sender, hyp)
-        contested = confidence > ceiling
+        contested = confidence >= self._track_threshold > ceiling        # refused for that alone
         confidence = min(confidence, ceiling)
         pairs = np.asarray(match.pairs, np.int32).reshape(-1, 2)
         if self._pairs_from_transform:

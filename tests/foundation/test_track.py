@@ -7,7 +7,7 @@ import pytest
 
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.track import TrackConfig, Tracker
-from mmatch.ego.track.predict import MAX_YAW_RATE
+from mmatch.ego.track.predict import MAX_BELIEF_RECORDS, MAX_YAW_RATE
 from mmatch.ego.track.filter import Candidate, new_hypothesis, pose_of, within_success
 from mmatch.fusion import Fuser, FusionConfig
 from mmatch.metrics import rre_deg, rte_m
@@ -514,3 +514,23 @@ def test_a_contested_track_is_refused_naming_it():
     res = fuser.fuse(frames[3][1], frames[3][2])
     assert res.status == "no-estimate" and res.reason == "contested"
     assert res.confidence == pytest.approx(0.4) and res.refused_T is not None
+
+
+def test_remembered_beliefs_never_come_from_the_future_and_are_bounded():
+    """A clock that steps back must not leave a rival belief that never ages (hostile stamps)."""
+    w = World()
+    tr = Tracker(TrackConfig(max_age_s=2.0))
+    t = _straight_start(w, tr)                         # beliefs remembered at 1.0-1.1 s
+    assert tr.track("cav").beliefs and max(s for s, _, _ in tr.track("cav").beliefs) > 1.05
+    own, oth = w.frame("ego", 0.5, True), w.frame("cav", 0.5, True)
+    _commit(tr, own, oth, w.truth(0.5, 0.5), p=0.95)
+    track = tr.track("cav")
+    assert track is not None and all(s <= 0.5 for s, _, _ in track.beliefs)
+    many = Tracker(TrackConfig(max_age_s=2.0, rival_memory_s=100.0))
+    t = _straight_start(w, many)
+    for _ in range(MAX_BELIEF_RECORDS + 20):           # every frame remembered, 100 Hz
+        own, oth = w.frame("ego", t, True), w.frame("cav", t, True)
+        _commit(many, own, oth, w.truth(t, t), p=0.95)
+        t += 0.01
+    beliefs = many.track("cav").beliefs
+    assert len(beliefs) == MAX_BELIEF_RECORDS and beliefs[-1][0] == pytest.approx(t - 0.01)

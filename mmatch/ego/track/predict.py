@@ -24,6 +24,9 @@ from mmatch.shared import SharedFrame
 # rad/s: no road vehicle turns faster (5 m/s on a 2.5 m radius); a sideways speed that implies
 # more (a garbled or forged velocity) is capped there
 MAX_YAW_RATE = 2.0
+# the beliefs a track remembers for `TrackConfig.rival_memory_s` (up to max_hypotheses a frame):
+# ample at 20 Hz, a bound when frames come far faster
+MAX_BELIEF_RECORDS = 512
 
 
 @dataclass(frozen=True)
@@ -304,9 +307,10 @@ class Tracker:
     def _remember_beliefs(self, track: PoseTrack, stamp: float) -> None:
         """Keep the beliefs of the track's established hypotheses over the last rival_memory_s."""
         cfg = self.cfg
-        recent = [r for r in track.beliefs if r[0] >= stamp - cfg.rival_memory_s]
-        track.beliefs = recent + [(stamp, h.uid, h.belief) for h in track.hypotheses
-                                  if h.hits >= cfg.rival_hits and h.belief >= cfg.rival_belief]
+        # a stamp ahead of this frame's (a clock stepped back) is not recent: it would never age
+        recent = [r for r in track.beliefs if stamp - cfg.rival_memory_s <= r[0] <= stamp]
+        track.beliefs = (recent + [(stamp, h.uid, h.belief) for h in track.hypotheses
+                                   if h.hits >= cfg.rival_hits and h.belief >= cfg.rival_belief])[-MAX_BELIEF_RECORDS:]
 
     def rival(self, sender: str, hyp: Hypothesis) -> float:
         """The highest belief another established hypothesis of this CAV's track had over the
