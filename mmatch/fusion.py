@@ -277,7 +277,8 @@ class Fuser:
         # by this frame or carried by prediction alone. Its belief alone, on a frame that
         # confirmed it, published a right track drifting 23 deg at 0.89 (yaw sigma 6 deg)
         confidence = float(hyp.belief * within_success(cov))
-        # ... and no surer than the established rival it overtook was wrong (TrackConfig.rival_memory_s)
+        # ... and no surer than the established rival it overtook was wrong
+        # (TrackConfig.rival_memory_s)
         ceiling = 1.0 - self.tracker.rival(other.sender, hyp)
         contested = confidence >= self._track_threshold > ceiling        # refused for that alone
         confidence = min(confidence, ceiling)

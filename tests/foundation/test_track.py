@@ -475,23 +475,24 @@ def test_a_hypothesis_that_overtook_an_established_rival_is_capped_by_the_rivals
     rival_memory_s (the evidence that made the right one believed was of the same kind)."""
     w = World()
     tr = Tracker(TrackConfig(max_age_s=2.0))
+
+    def slide(t: float) -> np.ndarray:
+        return w.truth(t, t) @ se2_to_matrix(np.eye(2), np.array([0.0, 12.0]))
+
     t = _straight_start(w, tr)
     right = tr.track("cav").best()
     assert right.hits >= 3 and right.belief >= 0.9
     for _ in range(20):                              # full searches that find only a 12 m slide
-        own, oth = w.frame("ego", t, True), w.frame("cav", t, True)
-        slide = w.truth(t, t) @ se2_to_matrix(np.eye(2), np.array([0.0, 12.0]))
-        best, _ = _commit(tr, own, oth, slide, p=0.97)
+        best, _ = _commit(tr, w.frame("ego", t, True), w.frame("cav", t, True), slide(t), p=0.97)
         t += 0.05
         if best.uid != right.uid:
             break
     assert best.uid != right.uid and rte_m(w.truth(t - 0.05, t - 0.05), best.T) > 10
     took_over = t - 0.05
-    assert tr.rival("cav", best) >= 0.9                # the right one was believed 0.9+ a moment ago
+    assert tr.rival("cav", best) >= 0.9                # the right one: 0.9+ a moment ago
     assert tr.rival("cav", tr.track("cav").best()) == tr.rival("cav", best)
     while t < took_over + 1.2:                         # a second later the slide stands alone
-        own, oth = w.frame("ego", t, True), w.frame("cav", t, True)
-        best, _ = _commit(tr, own, oth, w.truth(t, t) @ se2_to_matrix(np.eye(2), np.array([0.0, 12.0])), p=0.97)
+        best, _ = _commit(tr, w.frame("ego", t, True), w.frame("cav", t, True), slide(t), p=0.97)
         t += 0.05
     assert all(h.uid == best.uid or h.belief < 0.5 for h in tr.track("cav").hypotheses)
     assert tr.rival("cav", best) == 0.0

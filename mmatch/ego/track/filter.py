@@ -117,7 +117,8 @@ class Hypothesis:
 
     def copy(self) -> "Hypothesis":
         return Hypothesis(self.x.copy(), self.P.copy(), self.belief, self.hits, self.misses, self.hit_now,
-                          self.score, None if self.recent_R is None else self.recent_R.copy(), self.uid)
+                          self.score, None if self.recent_R is None else self.recent_R.copy(),
+                          self.uid)
 
 
 @dataclass
@@ -270,8 +271,8 @@ def new_hypothesis(z: np.ndarray, Rm: np.ndarray, belief: float, cfg: FilterConf
     P[:3, :3] = Rm
     P[3, 3] = P[4, 4] = cfg.yaw_rate_sigma0 ** 2
     b = min(max(float(belief), 1e-3), 1 - 1e-3)
-    return Hypothesis(np.concatenate([z, [0.0, 0.0]]), P, b, score=float(np.log(b / (1 - b))), recent_R=Rm.copy(),
-                      uid=next(_UIDS))
+    return Hypothesis(np.concatenate([z, [0.0, 0.0]]), P, b, score=float(np.log(b / (1 - b))),
+                      recent_R=Rm.copy(), uid=next(_UIDS))
 
 
 @dataclass

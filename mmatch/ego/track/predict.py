@@ -309,12 +309,14 @@ class Tracker:
         cfg = self.cfg
         # a stamp ahead of this frame's (a clock stepped back) is not recent: it would never age
         recent = [r for r in track.beliefs if stamp - cfg.rival_memory_s <= r[0] <= stamp]
-        track.beliefs = (recent + [(stamp, h.uid, h.belief) for h in track.hypotheses
-                                   if h.hits >= cfg.rival_hits and h.belief >= cfg.rival_belief])[-MAX_BELIEF_RECORDS:]
+        recent += [(stamp, h.uid, h.belief) for h in track.hypotheses
+                   if h.hits >= cfg.rival_hits and h.belief >= cfg.rival_belief]
+        track.beliefs = recent[-MAX_BELIEF_RECORDS:]
 
     def rival(self, sender: str, hyp: Hypothesis) -> float:
         """The highest belief another established hypothesis of this CAV's track had over the
-        last rival_memory_s (0: none; see TrackConfig): `hyp` is published at no more than 1 - it."""
+        last rival_memory_s (0: none; see TrackConfig): `hyp` is published at no more than
+        1 - it."""
         track = self._tracks.get(sender)
         if track is None or self.cfg.rival_memory_s <= 0:
             return 0.0
