@@ -162,8 +162,9 @@ class EgoSection:
                                        doc="an estimate less sure than this (its published confidence: P within "
                                            "2 m / 5 deg) is published as 'no estimate'; -1: the defaults, chosen "
                                            "on the wide physics family with a harsher one in view (0.79 a single "
-                                           "frame, the model's 0.42 as published; 0.75 a tracked transform, the "
-                                           "pose filter's belief)")
+                                           "frame, the model's 0.42 as published; 0.6 a tracked "
+                                           "transform, the pose filter's belief times its "
+                                           "spread's mass within 2 m / 5 deg)")
     max_links: int = _opt(8, lo=1, hi=256,
                           doc="every-CAV mode (cavs = []): at most this many CAVs at once; more are refused")
     link_expire_s: float = _opt(30.0, lo=0.0, lo_open=True, hi=3600.0,

@@ -92,13 +92,13 @@ class ConfidenceConfig:
     today's network and evidence a gate at 0 refused 58 right estimates for 2 gross ones on
     wide hard seeds 2, 5-9, 14-16: success 0.655 against 0.684); track_threshold: with
     tracking, a track's best hypothesis is published at this confidence or above (None: as a
-    single frame's; an explicit `threshold` applies to both): 0.7 since a track's published
-    confidence is its belief times the mass of its spread within 2 m / 5 deg on every frame
-    (fusion.py `Fuser._tracked`; before, on a frame that confirmed it, its belief alone): on
-    the tracker's tuning drives (seeds 400, 450, 460; 5400 frames) 0.75 / 0.7 / 0.65 gave
-    success 0.827 / 0.834 / 0.840 with 6 / 6 / 8 gross frames, and the lowest that keeps the
-    release before's 6 was taken (0.75 before, chosen the same way: 0.6 / 0.7 / 0.75 / 0.85 gave
-    12 / 8 / 6 / 6 there): a wrong hypothesis once published stays so for several frames;
+    single frame's; an explicit `threshold` applies to both): 0.6 since a pose that overtook a
+    believed one is held below that belief for a second (`TrackConfig.rival_memory_s`): on the
+    tracker's tuning drives (seeds 400, 450, 460; 5400 frames) 0.7 / 0.65 / 0.6 / 0.55 / 0.5
+    gave success 0.866 / 0.872 / 0.876 / 0.879 / 0.881, no frame with a gross error at any, and
+    7 / 8 / 10 / 12 / 13 frames 2-5 m or 5-10 deg off; the lowest that keeps the gross frames at
+    0 and those within 1.5 x was taken. Before, 0.7 (0.75 / 0.7 / 0.65 gave 6 / 6 / 8 gross
+    frames then): a wrong hypothesis once published stays so for several frames;
     single_pair_threshold:
     an estimate that rests on at most one vehicle pair while neither vehicle sees the other
     where it puts it (sighting <= 0) is fused only at this raw probability or above (unless the
@@ -129,7 +129,7 @@ class ConfidenceConfig:
 
     threshold: float | None = None
     min_margin: float | None = None
-    track_threshold: float | None = 0.7
+    track_threshold: float | None = 0.6
     single_pair_threshold: float = 0.75
     distinct_m: float = 5.0
     distinct_deg: float = 10.0

@@ -329,7 +329,7 @@ def test_a_track_is_published_at_its_own_threshold_unless_one_is_set():
     from mmatch.ego.confidence import ConfidenceConfig, load_model, threshold
     model = load_model()
     assert threshold() == pytest.approx(model.threshold)
-    assert threshold(tracked=True) == 0.7 != threshold()
+    assert threshold(tracked=True) == 0.6 != threshold()
     assert threshold(ConfidenceConfig(track_threshold=None), tracked=True) == threshold()
     assert threshold(ConfidenceConfig(threshold=0.0), tracked=True) == 0.0     # emit everything
 
