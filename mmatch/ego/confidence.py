@@ -97,8 +97,8 @@ class ConfidenceConfig:
     tracker's tuning drives (seeds 400, 450, 460; 5400 frames) 0.7 / 0.65 / 0.6 / 0.55 / 0.5
     gave success 0.866 / 0.872 / 0.876 / 0.879 / 0.881, no frame with a gross error at any, and
     7 / 8 / 10 / 12 / 13 frames 2-5 m or 5-10 deg off; the lowest that keeps the gross frames at
-    0 and those within 1.5 x was taken. Before, 0.7 (0.75 / 0.7 / 0.65 gave 6 / 6 / 8 gross
-    frames then): a wrong hypothesis once published stays so for several frames;
+    0 and the off ones within 1.5 x of 0.7's was taken. Before, 0.7 (0.75 / 0.7 / 0.65 gave 6 /
+    6 / 8 gross frames then): a wrong hypothesis once published stays so for several frames;
     single_pair_threshold:
     an estimate that rests on at most one vehicle pair while neither vehicle sees the other
     where it puts it (sighting <= 0) is fused only at this raw probability or above (unless the
