@@ -170,7 +170,8 @@ class Fuser:
             if predicted is None:
                 reason = "no vehicles in " + ("the own frame" if own.num_vehicles == 0 else "the CAV frame")
                 if pred.track is not None:          # the track goes on without this frame's evidence
-                    return self._tracked(own, other, pred, [], MatchResult(), {}, False, reason)
+                    return self._tracked(own, other, pred, own_objs, [], MatchResult(), {}, False,
+                                         reason)
                 return FusionResult("no-estimate", reason, objects=own_objs)
             match = MatchResult()
         else:
@@ -194,7 +195,8 @@ class Fuser:
         timings = {"matching": (t1 - t0) * 1e3, "alignment": (t2 - t1) * 1e3}
         if aligned.T is None:
             if self.tracker.enabled:
-                return self._tracked(own, other, pred, [], match, timings, predicted is None, aligned.reason)
+                return self._tracked(own, other, pred, own_objs, [], match, timings,
+                                     predicted is None, aligned.reason)
             return FusionResult("no-estimate", aligned.reason, pairs=match.pairs, objects=own_objs,
                                 timings=timings)
         T, a, cands, pairs = self._arbitrate(own, other, match, aligned)
@@ -210,8 +212,8 @@ class Fuser:
         match = replace(match, pairs=pairs)
         timings["confidence"] = (time.perf_counter() - t2) * 1e3
         if self.tracker.enabled:
-            return self._tracked(own, other, pred, cands, match, timings, predicted is None, a.reason, (T, a),
-                                 heading)
+            return self._tracked(own, other, pred, own_objs, cands, match, timings,
+                                 predicted is None, a.reason, (T, a), heading)
         ccfg = self.config.confidence
         # published with the model's calibration; the gates read the raw probability (the same
         # decisions, ego/confidence.py `ProbabilityModel.published`)
@@ -250,12 +252,13 @@ class Fuser:
                 yaw_rate = float(best.x[3])
         return self.objects.step(own, views, yaw_rate)
 
-    def _tracked(self, own: SharedFrame, other: SharedFrame, pred: Prediction, cands: list, match: MatchResult,
-                 timings: dict, full_search: bool, reason: str, chosen: tuple | None = None,
-                 heading: bool = True) -> FusionResult:
+    def _tracked(self, own: SharedFrame, other: SharedFrame, pred: Prediction, own_objs: np.ndarray,
+                 cands: list, match: MatchResult, timings: dict, full_search: bool, reason: str,
+                 chosen: tuple | None = None, heading: bool = True) -> FusionResult:
         """The pose filter's answer for this frame: every candidate the arbiter weighed is a
         measurement (ego/track/filter.py; the chosen one, `chosen` (T, Assessment), as
-        `_measured_confidence` says, heading: the frame pair has a heading prior); the best
+        `_measured_confidence` says, heading: the frame pair has a heading prior; own_objs: the
+        Ego's own objects, published whatever the answer); the best
         hypothesis is published when its confidence reaches the threshold. Pairs: with a matcher that says `pairs_from_transform`, its
         assignment under the published transform, as without tracking (30 drives of seed 500,
         default matcher: tracked pair F1 0.840 -> 0.856); otherwise the matcher's when its choice
@@ -266,7 +269,6 @@ class Fuser:
             for Tc, ac in cands]
         hyp, hit = self.tracker.commit(own, other, pred, candidates, full_search, self._shared_view(own, other, pred))
         timings = dict(timings, track=(time.perf_counter() - t0) * 1e3)
-        own_objs = _objects(far_side_centres(own), SOURCE_OWN)
         if hyp is None:
             return FusionResult("no-estimate", reason or "no track", objects=own_objs, timings=timings)
         T = hyp.T
