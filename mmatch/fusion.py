@@ -12,8 +12,8 @@ import numpy as np
 from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres,
                              velocity_heading_yaws, without_heading_prior)
 from mmatch.ego.confidence import (Assessment, ConfidenceConfig, PairContext, assess_many, published_confidence,
-                                   refusal, shared_view, single_pair_unconfirmed, threshold, vehicle_distances,
-                                   with_information)
+                                   refusal, shared_view, single_pair_unconfirmed, tells_poses_apart,
+                                   threshold, vehicle_distances, with_information)
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import near_transforms, rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
@@ -264,9 +264,12 @@ class Fuser:
         default matcher: tracked pair F1 0.840 -> 0.856); otherwise the matcher's when its choice
         falls in that hypothesis, else the vehicles the hypothesis lays on each other."""
         t0 = time.perf_counter()
-        candidates = [Candidate(pose_of(Tc), ac.covariance, float(np.nan_to_num(
-            self._measured_confidence(ac, heading) if chosen is not None and ac is chosen[1] else ac.confidence)))
-            for Tc, ac in cands]
+        candidates = []
+        for Tc, ac in cands:
+            is_chosen = chosen is not None and ac is chosen[1]
+            p = self._measured_confidence(ac, heading) if is_chosen else ac.confidence
+            candidates.append(Candidate(pose_of(Tc), ac.covariance, float(np.nan_to_num(p)),
+                                        pred.settling or tells_poses_apart(ac.features)))
         hyp, hit = self.tracker.commit(own, other, pred, candidates, full_search, self._shared_view(own, other, pred))
         timings = dict(timings, track=(time.perf_counter() - t0) * 1e3)
         if hyp is None:

@@ -901,6 +901,15 @@ def single_pair_unconfirmed(confidence: float, features: dict, cfg: ConfidenceCo
         and confidence < cfg.single_pair_threshold
 
 
+def tells_poses_apart(features: dict) -> bool:
+    """Whether an estimate's evidence tells a right pose from a wrong one: two or more vehicle
+    pairs, or a vehicle seen where it puts the other radar (sighting > 0). Without either (a
+    refinement on the background alone, one pair) its probability is low because one frame
+    cannot choose, not because the pose is wrong; the pose filter takes such an estimate as a
+    measurement of where a hypothesis lies, not of whether it is right (filter.Candidate)."""
+    return features.get("n_pairs", 2.0) >= 2 or features.get("sighting", 0.0) > 0
+
+
 def threshold(cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True, tracked: bool = False) -> float:
     """The probability below which an estimate is refused (0 without a model), in the units its
     gate reads: for a single frame the model's raw probability (`refusal` reads the arbiter's,

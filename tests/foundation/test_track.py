@@ -333,6 +333,29 @@ def test_a_turn_is_a_manoeuvre_from_its_start_to_its_end_however_many_searches_i
     assert all(flags[:20]) and not any(flags[-5:])
 
 
+def test_a_manoeuvre_settles_for_manoeuvre_hold_s_after_it_ends():
+    """While a radar turns, and for manoeuvre_hold_s after the turn ends, the prediction is
+    `settling` (fusion then counts every candidate as evidence: a yaw rate the turn left is not
+    corrected by refinements that start at the prediction); straight driving never settles."""
+    from dataclasses import replace
+
+    w = World()
+    cfg = TrackConfig(max_age_s=2.0, full_search_every=10, manoeuvre_hold_s=0.52, lever_arm_m=0.0)
+    tr = Tracker(cfg)
+    straight, turning = w.v_cav, np.array([-1.5, 9.0])
+    flags = []
+    for k, v_cav in enumerate([straight] * 3 + [turning] * 4 + [straight] * 20):
+        t = 1.0 + 0.05 * k
+        own, oth = w.frame("ego", t, True), replace(w.frame("cav", t, True), ego_velocity=v_cav)
+        pred = tr.predict(own, oth)
+        flags.append((pred.manoeuvre, pred.settling))
+        _commit(tr, own, oth, w.truth(t, t), p=0.95)
+    manoeuvre, settling = np.array(flags).T
+    last = int(np.flatnonzero(manoeuvre).max())
+    assert manoeuvre[3] and last >= 7 and not settling[:3].any()
+    assert settling[3:last + 11].all() and not settling[last + 11:].any()     # 10 frames: 0.5 s
+
+
 def test_through_a_turn_with_nothing_in_common_the_track_turns_as_the_sideways_velocity_says():
     """A radar lever_arm_m ahead of its rear axle moves sideways at yaw rate x lever arm: a track
     that coasts through the CAV's turn (no candidates) turns with it, its yaw rate moved towards

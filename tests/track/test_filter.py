@@ -117,3 +117,44 @@ def test_a_refinement_that_leaves_the_yaw_free_neither_moves_it_nor_swells_the_p
     assert abs(wrap(h.x[2] - z[2])) < np.radians(0.5)            # the free yaw did not pull
     assert np.sqrt(after[2, 2]) < 1.5 * np.sqrt(before[2, 2]) < np.radians(2.0)
     assert within_success(after) > 0.95
+
+
+def _believed_track(z: np.ndarray, cov: np.ndarray, cfg: FilterConfig) -> PoseTrack:
+    track = PoseTrack([], 0.0, 0.0, np.zeros(2), np.zeros(2))
+    for k in range(5):
+        step(track, [Candidate(z, cov, 0.95)], 0.05, cfg, independent=True)
+    return track
+
+
+def test_frames_that_cannot_tell_poses_apart_move_a_track_but_only_age_its_belief():
+    # a believed track meets a second (20 frames) of estimates resting on the background alone:
+    # each lands on it, 0.4 m further along, at probability 0.1 (one frame cannot choose), half
+    # of them from full searches; it follows them and only ages (the odds halve in half_life_s),
+    # where the same estimates told as evidence would take its belief away
+    cfg = FilterConfig()
+    cov = np.diag([0.3, 0.3, np.radians(1.0) ** 2])
+    z = np.array([2.0, 30.0, 0.0])
+    ends = {}
+    for informative in (False, True):
+        track = _believed_track(z, cov, cfg)
+        start, hits = track.best().score, track.best().hits
+        for k in range(20):
+            c = Candidate(z + [0.0, 0.4, 0.0], cov, 0.1, informative)
+            assert step(track, [c], 0.05, cfg, independent=k % 2 == 0)
+        ends[informative] = track.best()
+        if not informative:
+            assert abs(ends[False].score - (start - np.log(2.0) / cfg.half_life_s)) < 1e-9
+            assert ends[False].hits == hits
+    assert ends[False].belief > 0.99 > 0.5 > ends[True].belief
+    assert abs(ends[False].x[1] - 30.4) < 0.1                      # it still follows where they are
+
+
+def test_a_full_search_that_cannot_tell_poses_apart_does_not_contradict_a_track():
+    cfg = FilterConfig()
+    cov = np.diag([0.3, 0.3, np.radians(1.0) ** 2])
+    track = _believed_track(np.array([2.0, 30.0, 0.0]), cov, cfg)
+    start = track.best().score
+    elsewhere = Candidate(np.array([2.0, 18.0, 0.0]), cov, 0.15, False)   # a slide, below spawning
+    step(track, [elsewhere], 0.05, cfg, independent=True)
+    assert len(track.hypotheses) == 1
+    assert abs(track.best().score - (start - np.log(2.0) * 0.05 / cfg.half_life_s)) < 1e-9

@@ -53,6 +53,13 @@ class TrackConfig:
     turn's first frames searched: through a steady turn the track then kept its yaw while the
     truth turned 1.5-1.8 deg a frame (README, Over time); manoeuvre_max_s: a turn this long (s)
     ends, its direction then the new reference (a drive that began in a turn, a long curve);
+    manoeuvre_hold_s: while a radar turns or its yaw rate changes, and for this long (s) after,
+    every candidate weighs for or against the hypothesis it lands in, also one whose evidence
+    cannot tell poses apart (filter.Candidate.informative; `Prediction.settling`): a turn whose
+    end the manoeuvre test calls early leaves the track a yaw rate that refinements starting at
+    its prediction follow instead of correcting (a drive of seed 500 drifted 1.6 deg a frame,
+    published at 0.8-0.9, when such frames only aged the track); 1 s and 2 s tracked alike on
+    the tuning drives, 1 s kept;
     defer_search: the regular full search of a believed track runs after the frame's result
     (`Fuser.run_deferred`, which the vehicle service calls once it has published): that frame
     publishes the refined prediction as any tracking frame, and the search's candidates then
@@ -95,6 +102,7 @@ class TrackConfig:
     manoeuvre_speed_mps: float = 2.0
     manoeuvre_yaw_rate_sigma: float = 0.4
     manoeuvre_max_s: float = 5.0
+    manoeuvre_hold_s: float = 1.0
     lever_arm_m: float = 3.0
     lever_arm_spread: float = 0.5
     lever_arm_learn_within: float = 0.2
@@ -110,7 +118,8 @@ class Prediction:
     """A CAV's track moved to a new frame pair (not yet committed): the track (or None when
     there was none), the elapsed times (s) and the prior for the matcher (4x4 or None);
     manoeuvre: a radar is turning or its yaw rate changing (`Tracker._manoeuvres`); turning
-    (2,): which of the Ego's and the CAV's radars is turning (`commit` keeps their references)."""
+    (2,): which of the Ego's and the CAV's radars is turning (`commit` keeps their references);
+    settling: a manoeuvre runs or ended less than TrackConfig.manoeuvre_hold_s ago."""
 
     track: PoseTrack | None
     dt_own: float
@@ -118,6 +127,7 @@ class Prediction:
     prior_T: np.ndarray | None
     manoeuvre: bool = False
     turning: np.ndarray = field(default_factory=lambda: np.zeros(2, bool))
+    settling: bool = False
 
 
 class Tracker:
@@ -150,13 +160,18 @@ class Tracker:
         moved = PoseTrack(hyps, float(own.stamp), float(other.stamp), velocity_of(own), velocity_of(other),
                           tr.since_full, tr.frames, dict(tr.extra), list(tr.beliefs))
         turning, changing = self._manoeuvres(moved)
+        manoeuvre = bool(turning.any() or changing.any())
+        if manoeuvre:
+            moved.extra["last_manoeuvre"] = float(own.stamp)
+        since = float(own.stamp) - moved.extra.get("last_manoeuvre", -np.inf)
+        settling = since <= self.cfg.manoeuvre_hold_s
         for h in hyps:
             for k in np.flatnonzero(changing):
                 h.P[3 + k, 3 + k] += self.cfg.manoeuvre_yaw_rate_sigma ** 2
         self._turn_rates(moved, turning)
         best = moved.best()
         prior = best.T if best is not None and best.belief >= self.cfg.prior_belief else None
-        return Prediction(moved, dt_own, dt_other, prior, bool(turning.any() or changing.any()), turning)
+        return Prediction(moved, dt_own, dt_other, prior, manoeuvre, turning, settling)
 
     def _turn_rates(self, track: PoseTrack, turning: np.ndarray) -> None:
         """Bound each turning radar's yaw rate (track state 3 + k, rad/s, counter-clockwise) by
