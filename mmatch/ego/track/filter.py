@@ -331,7 +331,8 @@ def step(track: PoseTrack, candidates: list[Candidate], dt: float, cfg: FilterCo
     `Candidate.informative` counts for neither: it updates the state of the hypothesis it falls
     in, which ages as when nothing lands in it (it gave 0.5 x logit(0.1-0.3) a frame before,
     and a right track lost its belief within a second of its drive sharing no vehicles; with
-    the manoeuvre hold, the tuning drives' tracked success 0.876 -> 0.887, README "Over time").
+    the exceptions `Candidate` names, the tuning drives' tracked success 0.876 -> 0.889, README
+    "Over time").
     view: per hypothesis of the track (in order), (expected, missed) vehicles of the shared view
     at its predicted pose (`view_evidence`), or None."""
     noise = [measurement_noise(c.cov, cfg) for c in candidates]
