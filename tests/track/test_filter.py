@@ -158,3 +158,21 @@ def test_a_full_search_that_cannot_tell_poses_apart_does_not_contradict_a_track(
     step(track, [elsewhere], 0.05, cfg, independent=True)
     assert len(track.hypotheses) == 1
     assert abs(track.best().score - (start - np.log(2.0) * 0.05 / cfg.half_life_s)) < 1e-9
+
+
+def test_a_full_search_moves_a_hypothesis_to_its_surest_candidate_in_the_gate_not_its_nearest():
+    # a track 1.7 m behind the truth; a full search offers the refinement of its own prediction
+    # (0.84) and the truth (0.99), both in its gate: it follows the truth; a tracking frame
+    # (not independent) takes the nearest
+    cfg = FilterConfig()
+    cov = np.diag([0.3, 0.3, np.radians(1.0)]) ** 2
+    z = np.array([-3.6, 51.8, 0.0])
+    own_refinement = Candidate(z + [0.1, 0.3, 0.0], cov, 0.84)
+    truth = Candidate(z + [0.0, 1.7, 0.0], cov, 0.99)
+    moved = {}
+    for independent in (True, False):
+        track = PoseTrack([new_hypothesis(z, np.diag([0.3, 0.3, np.radians(1.0)]) ** 2, 0.9, cfg)],
+                          0.0, 0.0, np.zeros(2), np.zeros(2))
+        step(track, [own_refinement, truth], 0.05, cfg, independent=independent)
+        moved[independent] = track.best().x[1] - z[1]
+    assert moved[True] > 0.7 > 0.2 > moved[False] > 0.0          # gain about one half
