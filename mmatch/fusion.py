@@ -269,10 +269,8 @@ class Fuser:
             is_chosen = chosen is not None and ac is chosen[1]
             p = self._measured_confidence(ac, heading) if is_chosen else ac.confidence
             p = float(np.nan_to_num(p))
-            # a frame that cannot tell poses apart tells against no track (filter.Candidate), but
-            # one more likely right than not still confirms the one it lands in
             candidates.append(Candidate(pose_of(Tc), ac.covariance, p,
-                                        pred.settling or p >= 0.5 or tells_poses_apart(ac.features)))
+                                        pred.settling or tells_poses_apart(ac.features, p)))
         hyp, hit = self.tracker.commit(own, other, pred, candidates, full_search, self._shared_view(own, other, pred))
         timings = dict(timings, track=(time.perf_counter() - t0) * 1e3)
         if hyp is None:

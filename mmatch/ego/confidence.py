@@ -901,13 +901,15 @@ def single_pair_unconfirmed(confidence: float, features: dict, cfg: ConfidenceCo
         and confidence < cfg.single_pair_threshold
 
 
-def tells_poses_apart(features: dict) -> bool:
-    """Whether an estimate's evidence tells a right pose from a wrong one: two or more vehicle
-    pairs, or a vehicle seen where it puts the other radar (sighting > 0). Without either (a
-    refinement on the background alone, one pair) its probability is low because one frame
-    cannot choose, not because the pose is wrong; the pose filter takes such an estimate as a
-    measurement of where a hypothesis lies, not of whether it is right (filter.Candidate)."""
-    return features.get("n_pairs", 2.0) >= 2 or features.get("sighting", 0.0) > 0
+def tells_poses_apart(features: dict, p: float = 0.0) -> bool:
+    """Whether an estimate of confidence p tells a right pose from a wrong one: two or more
+    vehicle pairs, a vehicle seen where it puts the other radar (sighting > 0), or p >= 0.5.
+    Without any (a refinement on the background alone, one pair) its probability is low because
+    one frame cannot choose, not because the pose is wrong; the pose filter takes such an
+    estimate as a measurement of where a hypothesis lies, not of whether it is right
+    (filter.Candidate). One at least 0.5 sure all the same is more likely right than not and
+    confirms the hypothesis it lands in."""
+    return features.get("n_pairs", 2.0) >= 2 or features.get("sighting", 0.0) > 0 or p >= 0.5
 
 
 def threshold(cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True, tracked: bool = False) -> float:

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmatch.ego.confidence import CHI2_3_95, FEATURES, PairContext, features, inside_ellipse, pose_error
+from mmatch.ego.confidence import (CHI2_3_95, FEATURES, PairContext, features, inside_ellipse, pose_error,
+                                   tells_poses_apart)
 from mmatch.evaluate import EvalConfig, evaluate_scene, sureness_report
 from mmatch.sim.scenario import scene_from_world
 from mmatch.shared import SharedFrame
@@ -438,3 +439,12 @@ def test_fit_calibration_recovers_the_map_and_reliability_measures_it():
     right = np.r_[rng.random(70) < 0.67, np.ones(4000, bool), rng.random(200) < 0.8]
     a, b = fit_calibration(ends, right)
     assert 0 < a < 1 and 0 < b < 5
+
+
+def test_an_estimate_tells_poses_apart_by_two_pairs_a_sighting_or_its_own_sureness():
+    assert tells_poses_apart({"n_pairs": 2.0, "sighting": 0.0}, 0.1)
+    assert tells_poses_apart({"n_pairs": 1.0, "sighting": 1.0}, 0.1)
+    assert tells_poses_apart({"n_pairs": 1.0, "sighting": 0.0}, 0.5)
+    assert not tells_poses_apart({"n_pairs": 1.0, "sighting": 0.0}, 0.49)
+    assert not tells_poses_apart({"n_pairs": 0.0, "sighting": -1.0}, 0.2)     # the background alone
+    assert tells_poses_apart({}, 0.1)                 # nothing known of its evidence: as before

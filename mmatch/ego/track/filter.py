@@ -285,9 +285,9 @@ class Candidate:
     pose is wrong: it moves the hypothesis it lands in but neither raises, lowers nor
     contradicts any score, and the hypothesis ages as if nothing had landed (`step`). While a
     radar manoeuvres, and shortly after, every candidate is informative (the tracker's
-    `Prediction.settling`, ego/track/predict.py), and so is one at least 0.5 sure (fusion.py):
-    more likely right than not, it confirms the hypothesis it lands in (on a seed-800 drive, one
-    pair at 0.74-0.97 frame after frame had otherwise let an 11 m slide take the track over)."""
+    `Prediction.settling`, ego/track/predict.py), and so is one at least 0.5 sure: more likely
+    right than not, it confirms the hypothesis it lands in (on a seed-800 drive, one pair at
+    0.74-0.97 frame after frame had otherwise let an 11 m slide take the track over)."""
 
     z: np.ndarray
     cov: np.ndarray | None
