@@ -171,8 +171,7 @@ def test_a_full_search_moves_a_hypothesis_to_its_surest_candidate_in_the_gate_no
     truth = Candidate(z + [0.0, 1.7, 0.0], cov, 0.99)
     moved = {}
     for independent in (True, False):
-        track = PoseTrack([new_hypothesis(z, np.diag([0.3, 0.3, np.radians(1.0)]) ** 2, 0.9, cfg)],
-                          0.0, 0.0, np.zeros(2), np.zeros(2))
+        track = PoseTrack([new_hypothesis(z, cov, 0.9, cfg)], 0.0, 0.0, np.zeros(2), np.zeros(2))
         step(track, [own_refinement, truth], 0.05, cfg, independent=independent)
         moved[independent] = track.best().x[1] - z[1]
     assert moved[True] > 0.7 > 0.2 > moved[False] > 0.0          # gain about one half

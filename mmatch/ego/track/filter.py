@@ -342,6 +342,7 @@ def step(track: PoseTrack, candidates: list[Candidate], dt: float, cfg: FilterCo
     at its predicted pose (`view_evidence`), or None."""
     noise = [measurement_noise(c.cov, cfg) for c in candidates]
     sure = np.array([c.p for c in candidates])
+    ageing = np.log(2.0) * max(dt, 0.0) / max(cfg.half_life_s, 1e-6)    # log-odds lost unconfirmed
     used: set[int] = set()
     out = []
     for i, h in enumerate(track.hypotheses):
@@ -363,13 +364,13 @@ def step(track: PoseTrack, candidates: list[Candidate], dt: float, cfg: FilterCo
                 h2.score = h.score + (e if independent else min(e, 0.0))
             else:                                  # moved, not confirmed: it ages
                 h2.hits = h.hits
-                h2.score -= np.log(2.0) * max(dt, 0.0) / max(cfg.half_life_s, 1e-6)
+                h2.score -= ageing
         else:
             h2.misses, h2.hit_now = h.misses + 1, False
             far = [c.p for c in candidates if c.informative and _distinct(h, c.z, cfg)]
             if independent and far:                # the search found its answer elsewhere
                 h2.score -= cfg.contradict_weight * max(_logit(max(far)), 0.5)
-            h2.score -= np.log(2.0) * max(dt, 0.0) / max(cfg.half_life_s, 1e-6)
+            h2.score -= ageing
         if view is not None:
             h2.score += view_evidence(*view[i], cfg)
         out.append(h2)
