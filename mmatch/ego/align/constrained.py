@@ -41,8 +41,9 @@ from mmatch.shared import SharedFrame
 class ConstrainedConfig:
     observation: ObservationModel = ObservationModel()
     refine: RefineConfig = field(default_factory=lambda: RefineConfig(
-        iterations=5, vehicle_gate=6.0, desc_gate=1.01, bg_weight_total=16.0))   # background weighs 16 vehicles;
-                                        # 5 rounds (8 until 2026-12-07: ConsensusConfig.refine)
+        iterations=5, vehicle_gate=6.0, desc_gate=1.01, bg_weight_total=16.0))
+                                        # background weighs 16 vehicles; 5 rounds (8 until
+                                        # 2026-12-07: ConsensusConfig.refine)
     score_gate_m: float = 1.0           # background points within this count as agreeing
     max_single_pair_starts: int = 8     # up to this many pairs, each also starts a fit alone
     kabsch_with_hint: bool = False      # also start from Kabsch when the matcher gives a transform
