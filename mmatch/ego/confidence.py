@@ -897,8 +897,13 @@ def single_pair_unconfirmed(confidence: float, features: dict, cfg: ConfidenceCo
     """Whether an estimate of this raw probability rests on at most one vehicle pair that neither
     vehicle's sighting of the other confirms (sighting <= 0), below `cfg.single_pair_threshold`:
     a single frame refuses it as "too few vehicles" whatever its other gates say."""
-    return features.get("n_pairs", 2.0) <= 1 and features.get("sighting", 1.0) <= 0 \
-        and confidence < cfg.single_pair_threshold
+    return _one_unconfirmed_pair(features) and confidence < cfg.single_pair_threshold
+
+
+def _one_unconfirmed_pair(features: dict) -> bool:
+    """Whether an estimate's evidence rests on at most one vehicle pair that no sighting of the
+    other vehicle confirms (sighting <= 0; unknown evidence counts as confirmed)."""
+    return features.get("n_pairs", 2.0) <= 1 and features.get("sighting", 1.0) <= 0
 
 
 def tells_poses_apart(features: dict, p: float = 0.0) -> bool:
@@ -909,7 +914,7 @@ def tells_poses_apart(features: dict, p: float = 0.0) -> bool:
     estimate as a measurement of where a hypothesis lies, not of whether it is right
     (filter.Candidate). One at least 0.5 sure all the same is more likely right than not and
     confirms the hypothesis it lands in."""
-    return features.get("n_pairs", 2.0) >= 2 or features.get("sighting", 0.0) > 0 or p >= 0.5
+    return not _one_unconfirmed_pair(features) or p >= 0.5
 
 
 def threshold(cfg: ConfidenceConfig = ConfidenceConfig(), heading: bool = True, tracked: bool = False) -> float:
