@@ -354,16 +354,15 @@ def step(track: PoseTrack, candidates: list[Candidate], dt: float, cfg: FilterCo
                 k = int(gated[np.lexsort((d2[gated], -sure[gated]))[0]])
             else:
                 k = int(gated[np.argmin(d2[gated])])
+            told = [candidates[g].p for g in gated if candidates[g].informative]
             h2 = update(h, candidates[k].z, noise[k])
-            h2.hits, h2.misses, h2.hit_now = h.hits + 1, 0, True
+            h2.hits, h2.misses, h2.hit_now = h.hits + bool(told), 0, True
             h2.recent_R = noise[k] if h.recent_R is None else _blend_noise(h.recent_R, noise[k])
             used.update(int(g) for g in gated)
-            told = [candidates[g].p for g in gated if candidates[g].informative]
             if told:
                 e = cfg.hit_weight * float(np.clip(_logit(max(told)), -1.0, 3.0))
                 h2.score = h.score + (e if independent else min(e, 0.0))
             else:                                  # moved, not confirmed: it ages
-                h2.hits = h.hits
                 h2.score -= ageing
         else:
             h2.misses, h2.hit_now = h.misses + 1, False
