@@ -191,15 +191,29 @@ def _descriptor_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(1 - bc / 3, 0, 1))
 
 
-def _unit_groups(x: np.ndarray) -> tuple[np.ndarray, ...]:
+DESC_GROUPS = ((0, 16), (16, 24), (24, 32))     # the descriptor's H, S and V histograms (DESIGN.md)
+
+
+def unit_descriptor_groups(x: np.ndarray) -> tuple[np.ndarray, ...]:
     """The H, S, V groups (V, 16), (V, 8), (V, 8) of descriptors x (V, 32) as square-root
-    histograms of unit length, in x's dtype. Once per descriptor array inside a fusion
-    (ego/memo.py): a frame's descriptors meet the other view's and their own (graph.py)."""
-    def groups() -> tuple[np.ndarray, ...]:
-        s = np.sqrt(np.clip(x, 0, None))
-        return tuple(s[:, lo:hi] / np.maximum(np.linalg.norm(s[:, lo:hi], axis=1, keepdims=True), 1e-9)
-                     for lo, hi in ((0, 16), (16, 24), (24, 32)))
-    return memo("descriptor_groups", (x,), groups)
+    histograms of unit length, in x's dtype. A group without mass (all zero or negative: a
+    sender that measured no colour) reads as the uniform histogram, as the camera driver
+    describes a box without pixels: no appearance evidence either way, where a zero vector
+    would be unlike every other descriptor and veto every pair."""
+    s = np.sqrt(np.clip(x, 0, None))
+    out = []
+    for lo, hi in DESC_GROUPS:
+        g = s[:, lo:hi]
+        norm = np.linalg.norm(g, axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out.append(np.where(norm > 0, g / norm, np.asarray(1 / np.sqrt(hi - lo), g.dtype)))
+    return tuple(out)
+
+
+def _unit_groups(x: np.ndarray) -> tuple[np.ndarray, ...]:
+    """`unit_descriptor_groups` once per descriptor array inside a fusion (ego/memo.py): a
+    frame's descriptors meet the other view's and their own (graph.py)."""
+    return memo("descriptor_groups", (x,), lambda: unit_descriptor_groups(x))
 
 
 MIN_SPEED_FOR_HEADING = 3.0

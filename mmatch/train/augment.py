@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmatch.ego.match.graph import DESC_GROUPS, hellinger_embedding
+from mmatch.ego.base import DESC_GROUPS
+from mmatch.ego.match.graph import hellinger_embedding
 
 HUE = DESC_GROUPS[0]
 DESC_DIM = DESC_GROUPS[-1][1]

@@ -63,6 +63,24 @@ def test_descriptor_distance_is_zero_for_equal_and_one_for_disjoint():
     assert descriptor_distance(a, b)[0, 0] == pytest.approx(1)
 
 
+def test_a_descriptor_without_colour_reads_as_uniform_not_unlike_everything():
+    """A sender that measured no colour (all-zero histograms, or one group empty) gives no
+    appearance evidence: as far from every descriptor as the uniform one, never the maximum."""
+    from mmatch.ego.match.graph import hellinger_embedding
+    rng = np.random.default_rng(0)
+    a = rng.random((4, 32)).astype(np.float32)
+    zero = np.zeros((2, 32), np.float32)
+    zero[1, :16] = a[0, :16]                              # hue measured, saturation and value not
+    uniform = np.concatenate([np.full(16, 1 / 16), np.full(8, 1 / 8), np.full(8, 1 / 8)]).astype(np.float32)
+    half = np.concatenate([a[0, :16], uniform[16:]])
+    expected = descriptor_distance(np.stack([uniform, half]), a)
+    np.testing.assert_allclose(descriptor_distance(zero, a), expected, atol=1e-6)
+    assert np.all(descriptor_distance(zero, a) < 0.9)
+    assert descriptor_distance(zero[:1], uniform[None])[0, 0] == pytest.approx(0, abs=1e-6)
+    np.testing.assert_allclose(hellinger_embedding(zero), hellinger_embedding(np.stack([uniform, half])), atol=1e-7)
+    assert np.all(np.isfinite(hellinger_embedding(zero)))
+
+
 def test_heading_yaws_need_moving_radars():
     own = SharedFrame("e", 0, 0.0, 0.5, ego_velocity=np.array([0.0, 15.0]))
     other = SharedFrame("c", 0, 0.0, 0.5, ego_velocity=np.array([15.0, 0.0]))

@@ -40,13 +40,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmatch.ego.base import descriptor_distance, detection_scores, radial_ground_speeds
+from mmatch.ego.base import DESC_GROUPS, descriptor_distance, detection_scores, radial_ground_speeds, \
+    unit_descriptor_groups
 from mmatch.ego.observations import Observations, observe
 from mmatch.shared import CANONICAL_FOCAL_PX, SharedFrame
 
 NODE_DIM = 48
 EDGE_DIM = 10
-DESC_GROUPS = ((0, 16), (16, 24), (24, 32))
 RANGE_SCALE_M = 50.0
 SPEED_SCALE_MPS = 20.0
 MIN_COS = 0.35
@@ -79,12 +79,8 @@ class CrossGraph:
 
 def hellinger_embedding(features: np.ndarray) -> np.ndarray:
     """(V, 32) descriptors -> (V, 32) sqrt histograms, unit length per H, S, V group."""
-    s = np.sqrt(np.clip(np.asarray(features, np.float64), 0, None))
-    out = np.zeros_like(s)
-    for lo, hi in DESC_GROUPS:
-        g = s[:, lo:hi]
-        out[:, lo:hi] = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
-    return out
+    x = np.asarray(features, np.float64).reshape(-1, DESC_GROUPS[-1][1])
+    return np.concatenate(unit_descriptor_groups(x), axis=1)
 
 
 def _extents(frame: SharedFrame, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
