@@ -6,19 +6,27 @@ perfect separation; they need the optional `V_point_labels` / `V_box_ids` keys.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from mmatch.cav.config import InputConfig
 from mmatch.cav.egomotion import fit_egomotion
+from mmatch.cav.process import with_size_prior_depth
 from mmatch.errors import SceneFormatError
 from mmatch.shared import SharedFrame, canonical_boxes
 from mmatch.types import View
 
 
 def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
-    """Vehicles = every correctly detected box (parked cars too) with its labelled points; background = label -1."""
+    """Vehicles = every correctly detected box (parked cars too) with its labelled points; background = label -1.
+    A box without a depth is placed by the CAV side's size prior (`with_size_prior_depth`)."""
     if view.point_labels is None or view.box_ids is None:
         raise SceneFormatError("<scene>", "point_labels/box_ids", "labels needed for --cav labels")
     lab, ids = view.point_labels, view.box_ids
+    # a box without a depth is placed as the CAV side places it (cav/config.py InputConfig)
+    view = replace(view, boxes=with_size_prior_depth(np.asarray(view.boxes, np.float32), view.camera.K,
+                                                     InputConfig().unknown_depth_height_m))
     keep = [b for b, vid in enumerate(ids) if vid >= 0]
     pts, idx, centers = [], [], []
     for v, b in enumerate(keep):

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from mmatch.cav.depth_scale import box_bearings
-from mmatch.ego.match.graph import DESC_GROUPS
+from mmatch.ego.base import DESC_GROUPS
 from mmatch.errors import ConfigError, MMatchError
 from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_with, report, scene_depth_evidence
 from mmatch.scene_io import load_scene
@@ -99,6 +99,11 @@ def _descriptor_noise(share: float) -> Callable[[View, np.random.Generator], Vie
             f[:, lo:hi] = (1 - share) * f[:, lo:hi] + share * mass * rng.dirichlet(np.ones(hi - lo), len(f))
         return replace(view, features=f.astype(np.float32))
     return apply
+
+
+def _no_colour(view: View, rng: np.random.Generator) -> View:
+    """Every descriptor all zero: a sender that measures no colour (DESIGN.md's histogram unfilled)."""
+    return replace(view, features=np.zeros_like(np.asarray(view.features, np.float32)))
 
 
 def _hue_shift(bins: float) -> Callable[[View, np.random.Generator], View]:
@@ -186,6 +191,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in (
           _depth_offset(-2.0)),
     Check("depth-z", "shift", "monocular depth along the optical axis, not to the vehicle centre",
           _depth_along_axis),
+    Check("no-depth", "shift", "monocular depth 0 for every box (a detector without a depth output)",
+          _box_column(5, 0.0)),
     Check("snr+10", "shift", "SNR + 10 dB (another radar's SNR scale)", _point_column(4, 10.0)),
     Check("snr-6", "shift", "SNR - 6 dB", _point_column(4, -6.0)),
     Check("no-elevation", "shift", "z = 0 for every return (a radar without elevation)",
@@ -197,6 +204,7 @@ CHECKS: dict[str, Check] = {c.name: c for c in (
           _azimuth_noise(1.5)),
     Check("descriptor-noise", "shift", "half of each descriptor histogram replaced by a random one (less appearance)",
           _descriptor_noise(0.5)),
+    Check("no-colour", "shift", "every descriptor all zero (a sender without colour)", _no_colour),
     Check("hue+1bin", "shift", "the Ego camera's hues 11.25 OpenCV units off the CAV's (twice the family's spread)",
           _hue_shift(1.0), ego_only=True),
 )}

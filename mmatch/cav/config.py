@@ -214,11 +214,17 @@ class InputConfig:
     outside 0-1, a depth outside (0, max_range_m] or a corner beyond max_pixel (in the camera's
     pixels or in the canonical image the wire carries, shared.py) are not vehicles. The limits keep every product of `process_view` within the wire format
     (+-327 m, +-327 m/s, +-16383 px), so encoding it cannot fail.
+
+    unknown_depth_height_m: a box whose depth is missing (non-finite, 0 or negative: a detector
+    without a depth output, or none for that box) is placed by the size prior instead, a
+    vehicle this tall (m) at the box's pixel height, as the camera driver does without a road
+    plane (drivers/camera/pipeline.py); 0: such boxes are not vehicles.
     """
 
     max_range_m: float = 300.0
     max_doppler_mps: float = 300.0
     max_pixel: float = 16000.0
+    unknown_depth_height_m: float = 1.5
 
 
 @dataclass(frozen=True)
@@ -303,7 +309,8 @@ def _check(cfg: CavConfig) -> None:
                     ("egomotion.threshold_sigma", cfg.egomotion.threshold_sigma),
                     ("egomotion.threshold_floor_mps", cfg.egomotion.threshold_floor_mps),
                     ("radar.floor_az_deg", cfg.radar.floor_az_deg), ("radar.floor_el_deg", cfg.radar.floor_el_deg),
-                    ("radar.glint_share", cfg.radar.glint_share)]
+                    ("radar.glint_share", cfg.radar.glint_share),
+                    ("inputs.unknown_depth_height_m", cfg.inputs.unknown_depth_height_m)]
     for key, value in positive:
         if not value > 0:
             raise ConfigError(f"cav.{key}: must be > 0, got {value}")

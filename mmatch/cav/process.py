@@ -162,6 +162,25 @@ def _usable_points(points: np.ndarray, cfg: CavConfig) -> tuple[np.ndarray, np.n
     return points, rows
 
 
+def with_size_prior_depth(boxes: np.ndarray, K: np.ndarray, height_m: float) -> np.ndarray:
+    """boxes (M, 6) with each missing depth (non-finite, 0 or negative) replaced by the size
+    prior: the distance from the camera, along the ray through the box centre, at which a
+    vehicle height_m (m) tall fills the box's pixel height (K: (3, 3) intrinsics). Boxes with
+    a known depth, or corners that give no height, are returned as they are; height_m 0: none."""
+    with np.errstate(invalid="ignore"):
+        fill = ~(boxes[:, 5] > 0) & np.all(np.isfinite(boxes[:, :4]), axis=1) & (boxes[:, 3] > boxes[:, 1])
+    if height_m <= 0 or not fill.any():
+        return boxes
+    b = boxes[fill].astype(np.float64)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    z = fy * height_m / (b[:, 3] - b[:, 1])
+    ray = np.hypot(((b[:, 0] + b[:, 2]) / 2 - cx) / fx, ((b[:, 1] + b[:, 3]) / 2 - cy) / fy)
+    out = boxes.copy()
+    out[fill, 5] = z * np.sqrt(1.0 + ray * ray)
+    log.debug("%d box(es) without a depth placed by the size prior", int(fill.sum()))
+    return out
+
+
 def depth_evidence(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera: CameraModel,
                    config: CavConfig | None = None) -> np.ndarray:
     """`run_view`'s `depth_evidence` (its camera depth calibration's input) without the rest of
@@ -199,6 +218,7 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
     depth_evidence = box_depth_evidence(boxes, proj, moving, camera.K)   # from the depths as detected
     boxes = DepthCalibration(float(depth_scale), bool(depth_along_axis)).apply(boxes, camera.K)
+    boxes = with_size_prior_depth(boxes, camera.K, lim.unknown_depth_height_m)
     # a corner beyond float32 in the canonical image becomes inf there and fails max_pixel below
     with np.errstate(invalid="ignore", over="ignore"):
         canon = canonical_boxes(boxes, camera.K)             # what the wire carries of each box

@@ -152,9 +152,33 @@ def test_empty_and_degenerate_frames_never_raise():
     frame, _ = process_view(pts, f.boxes, f.features, f.camera, 0.8, 1.0)
     assert np.all(np.isfinite(frame.vehicle_points)) and np.all(np.isfinite(frame.background))
     bad_boxes = f.boxes.copy()
-    bad_boxes[0, 5] = np.nan
+    bad_boxes[0, 0] = np.nan
     frame, _ = process_view(f.points, bad_boxes, f.features, f.camera, 0.8, 1.0)
     assert 0 not in frame.vehicle_box_index.tolist()
+
+
+def test_a_box_without_a_depth_is_placed_by_the_size_prior():
+    """A detector without a depth output (0), or none for one box (NaN, negative): the box is
+    still a vehicle, at the distance where a 1.5 m tall vehicle fills its pixel height; with
+    inputs.unknown_depth_height_m = 0 such boxes are no vehicles (the behaviour before)."""
+    f = make_frame(3, n_moving=5)
+    ref, _ = run(f)
+    boxes = f.boxes.copy()
+    boxes[:, 5] = 0.0
+    boxes[1, 5], boxes[2, 5] = np.nan, -4.0
+    frame, _ = process_view(f.points, boxes, f.features, f.camera, f.radar_height, 12.5)
+    real = np.flatnonzero(f.box_ids >= 0)
+    shared = np.intersect1d(frame.vehicle_box_index, real)
+    assert len(shared) >= len(np.intersect1d(ref.vehicle_box_index, real)) - 1 and {1, 2} <= set(shared.tolist())
+    at = {int(b): k for k, b in enumerate(frame.vehicle_box_index)}
+    placed = np.array([frame.vehicle_boxes[at[b], 5] for b in shared])
+    assert np.all(np.abs(placed / f.boxes[shared, 5] - 1) < 0.4)          # the detector's: 12 % off
+    ranges = np.linalg.norm(frame.vehicle_centers[[at[b] for b in shared]], axis=1)
+    assert np.all(np.abs(ranges / f.boxes[shared, 5] - 1) < 0.4)
+    decode(encode(frame))
+    off = CavConfig(inputs=replace(CavConfig().inputs, unknown_depth_height_m=0.0))
+    frame, _ = process_view(f.points, boxes, f.features, f.camera, f.radar_height, 12.5, config=off)
+    assert frame.num_vehicles == 0
 
 
 @pytest.mark.parametrize("points, boxes, features", [

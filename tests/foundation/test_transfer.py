@@ -79,6 +79,9 @@ def test_each_check_rewrites_both_views_as_described(hard_dir):
     np.testing.assert_allclose(hue.ego.features[:, :16], np.roll(s.ego.features[:, :16], 1, axis=1))
     np.testing.assert_array_equal(hue.ego.features[:, 16:], s.ego.features[:, 16:])
     np.testing.assert_array_equal(hue.cav.features, s.cav.features)       # one camera unlike the other
+    assert not perturb(s, CHECKS["no-depth"]).cav.boxes[:, 5].any()
+    blank = perturb(s, CHECKS["no-colour"])
+    assert not blank.ego.features.any() and not blank.cav.features.any()
     # repeatable, and the scene itself untouched
     np.testing.assert_array_equal(perturb(s, CHECKS["half-points"]).cav.points, half.cav.points)
     for k, v in before.items():
