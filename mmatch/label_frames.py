@@ -24,7 +24,6 @@ def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
     if view.point_labels is None or view.box_ids is None:
         raise SceneFormatError("<scene>", "point_labels/box_ids", "labels needed for --cav labels")
     lab, ids = view.point_labels, view.box_ids
-    # a box without a depth is placed as the CAV side places it (cav/config.py InputConfig)
     view = replace(view, boxes=with_size_prior_depth(np.asarray(view.boxes, np.float32), view.camera.K,
                                                      InputConfig().unknown_depth_height_m))
     keep = [b for b, vid in enumerate(ids) if vid >= 0]

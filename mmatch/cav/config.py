@@ -210,8 +210,8 @@ class InputConfig:
     """Plausibility limits on the inputs; rows beyond them are ignored, never an error.
 
     Points farther than max_range_m (any coordinate), with |doppler| above max_doppler_mps,
-    or non-finite, are dropped; boxes with a non-finite value or descriptor, a score
-    outside 0-1, a depth outside (0, max_range_m] or a corner beyond max_pixel (in the camera's
+    or non-finite, are dropped; boxes with a non-finite corner, score or descriptor, a score
+    outside 0-1, a depth beyond max_range_m or a corner beyond max_pixel (in the camera's
     pixels or in the canonical image the wire carries, shared.py) are not vehicles. The limits keep every product of `process_view` within the wire format
     (+-327 m, +-327 m/s, +-16383 px), so encoding it cannot fail.
 
