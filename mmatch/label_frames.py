@@ -15,12 +15,13 @@ from mmatch.cav.egomotion import fit_egomotion
 from mmatch.cav.process import with_size_prior_depth
 from mmatch.errors import SceneFormatError
 from mmatch.shared import SharedFrame, canonical_boxes
-from mmatch.types import View
+from mmatch.types import View, normalised_descriptors
 
 
 def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
     """Vehicles = every correctly detected box (parked cars too) with its labelled points; background = label -1.
-    A box without a depth is placed by the CAV side's size prior (`with_size_prior_depth`)."""
+    A box without a depth is placed by the CAV side's size prior (`with_size_prior_depth`), and
+    descriptors are made distributions as the CAV side makes them (`normalised_descriptors`)."""
     if view.point_labels is None or view.box_ids is None:
         raise SceneFormatError("<scene>", "point_labels/box_ids", "labels needed for --cav labels")
     lab, ids = view.point_labels, view.box_ids
@@ -43,7 +44,7 @@ def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
         vehicle_boxes=canonical_boxes(view.boxes[keep], view.camera.K),
         vehicle_box_index=np.array(keep, np.int32),
         vehicle_centers=np.array(centers, np.float32).reshape(-1, 2),
-        vehicle_features=view.features[keep].reshape(-1, 32),
+        vehicle_features=normalised_descriptors(view.features[keep]),
         background=bg.astype(np.float32))
 
 

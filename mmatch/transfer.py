@@ -29,11 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from mmatch.cav.depth_scale import box_bearings
-from mmatch.ego.base import DESC_GROUPS
 from mmatch.errors import ConfigError, MMatchError
 from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_with, report, scene_depth_evidence
 from mmatch.scene_io import load_scene
-from mmatch.types import Scene, View
+from mmatch.types import DESCRIPTOR_GROUPS, Scene, View
 
 
 def _resolution(factor: float) -> Callable[[View, np.random.Generator], View]:
@@ -86,7 +85,7 @@ def _double_points(view: View, rng: np.random.Generator) -> View:
     return replace(view, points=np.concatenate([p, copy]).astype(np.float32), point_labels=labels)
 
 
-HUE_BINS = DESC_GROUPS[0][1]       # the descriptor's hue histogram: its first entries (DESIGN.md)
+HUE_BINS = DESCRIPTOR_GROUPS[0][1]     # the hue histogram: the first entries (DESIGN.md)
 
 
 def _descriptor_noise(share: float) -> Callable[[View, np.random.Generator], View]:
@@ -94,7 +93,7 @@ def _descriptor_noise(share: float) -> Callable[[View, np.random.Generator], Vie
     draw) at `share`: a camera or a detector whose boxes say less about a vehicle's colour."""
     def apply(view: View, rng: np.random.Generator) -> View:
         f = np.array(view.features, np.float64)
-        for lo, hi in DESC_GROUPS:
+        for lo, hi in DESCRIPTOR_GROUPS:
             mass = f[:, lo:hi].sum(axis=1, keepdims=True)
             f[:, lo:hi] = (1 - share) * f[:, lo:hi] + share * mass * rng.dirichlet(np.ones(hi - lo), len(f))
         return replace(view, features=f.astype(np.float32))

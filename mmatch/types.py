@@ -14,12 +14,32 @@ import numpy as np
 POINT_COLUMNS: tuple[str, ...] = ("x", "y", "z", "doppler", "snr")
 X, Y, Z, DOPPLER, SNR = range(5)
 DESCRIPTOR_DIM = 32
+DESCRIPTOR_GROUPS = ((0, 16), (16, 24), (24, 32))     # the descriptor's H, S and V histograms
 BOX_COLUMNS: tuple[str, ...] = ("u1", "v1", "u2", "v2", "score", "depth")
 
 
 def empty_points() -> np.ndarray:
     """An empty (0, 5) float32 point array."""
     return np.zeros((0, 5), dtype=np.float32)
+
+
+def normalised_descriptors(features: np.ndarray) -> np.ndarray:
+    """float32 (M, 32) descriptors with each H, S and V group a distribution, as DESIGN.md
+    defines them: negative bins 0, each group scaled to sum to 1 (a sender that counts pixels),
+    a group without mass uniform (no colour measured, as the camera driver describes a box
+    without pixels). Rows that are distributions already (within 1e-3) and rows with a
+    non-finite value come back as they are."""
+    f = np.array(features, np.float32).reshape(-1, DESCRIPTOR_DIM)
+    finite = np.all(np.isfinite(f), axis=1)
+    for lo, hi in DESCRIPTOR_GROUPS:
+        g = np.clip(f[:, lo:hi], 0, None)
+        mass = g.sum(axis=1)
+        fix = finite & ((np.abs(mass - 1) > 1e-3) | np.any(f[:, lo:hi] < 0, axis=1))
+        if fix.any():
+            m = mass[fix, None]
+            uniform = np.float32(1 / (hi - lo))
+            f[fix, lo:hi] = np.where(m > 0, g[fix] / np.where(m > 0, m, 1), uniform)
+    return f
 
 
 @dataclass

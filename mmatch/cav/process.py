@@ -48,7 +48,7 @@ from mmatch.cav.membership import load_model as load_membership
 from mmatch.cav.plausibility import duplicates, see_through
 from mmatch.errors import MMatchError
 from mmatch.shared import SharedFrame, canonical_boxes
-from mmatch.types import DESCRIPTOR_DIM, CameraModel
+from mmatch.types import DESCRIPTOR_DIM, CameraModel, normalised_descriptors
 
 log = logging.getLogger(__name__)
 
@@ -202,6 +202,7 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     if not (np.isfinite(depth_scale) and depth_scale > 0):
         raise CavInputError(f"depth_scale must be a positive factor, got {depth_scale!r}")
     points, boxes, features = _check_inputs(points, boxes, features)
+    features = normalised_descriptors(features)       # the wire carries distributions (0-1 a bin)
     n_in = len(points)
     lim = cfg.inputs
     points, rows = _usable_points(points, cfg)

@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 from mmatch.ego.memo import memo
 from mmatch.numeric import lengths
 from mmatch.shared import CANONICAL_FOCAL_PX, TYPICAL_SCORE, SharedFrame, lifted_scores
+from mmatch.types import DESCRIPTOR_GROUPS
 
 
 @dataclass
@@ -191,9 +192,6 @@ def _descriptor_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(1 - bc / 3, 0, 1))
 
 
-DESC_GROUPS = ((0, 16), (16, 24), (24, 32))     # the descriptor's H, S and V histograms (DESIGN.md)
-
-
 def unit_descriptor_groups(x: np.ndarray) -> tuple[np.ndarray, ...]:
     """The H, S, V groups (V, 16), (V, 8), (V, 8) of descriptors x (V, 32) as square-root
     histograms of unit length, in x's dtype. A group without mass (all zero or negative: a
@@ -202,7 +200,7 @@ def unit_descriptor_groups(x: np.ndarray) -> tuple[np.ndarray, ...]:
     would be unlike every other descriptor and veto every pair."""
     s = np.sqrt(np.clip(x, 0, None))
     out = []
-    for lo, hi in DESC_GROUPS:
+    for lo, hi in DESCRIPTOR_GROUPS:
         g = s[:, lo:hi]
         norm = np.linalg.norm(g, axis=1, keepdims=True)
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -23,11 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmatch.ego.base import DESC_GROUPS
 from mmatch.ego.match.graph import hellinger_embedding
+from mmatch.types import DESCRIPTOR_GROUPS
 
-HUE = DESC_GROUPS[0]
-DESC_DIM = DESC_GROUPS[-1][1]
+HUE = DESCRIPTOR_GROUPS[0]
+DESC_DIM = DESCRIPTOR_GROUPS[-1][1]
 EDGE_DESC = 9                   # graph.py: the local edge's descriptor distance
 
 
@@ -55,7 +55,7 @@ def _rewrite_view(x: np.ndarray, e: np.ndarray, nbr: np.ndarray, node_mask: np.n
     (B, V) and (B, V, K); share (B,) mixing shares, bins (B,) hue turns (0: none)."""
     h = np.asarray(x[..., :DESC_DIM], np.float64) ** 2
     s = share[:, None, None]
-    for lo, hi in DESC_GROUPS:
+    for lo, hi in DESCRIPTOR_GROUPS:
         g = h[..., lo:hi]
         if share.any():
             draw = rng.standard_exponential(g.shape)
@@ -68,8 +68,8 @@ def _rewrite_view(x: np.ndarray, e: np.ndarray, nbr: np.ndarray, node_mask: np.n
     if e.shape[2]:
         nb = emb[np.arange(len(emb))[:, None, None], nbr]                 # (B, V, K, 32)
         bc = np.einsum("bvd,bvkd->bvk", emb, nb)
-        e[..., EDGE_DESC] = np.where(edge_mask > 0, np.sqrt(np.clip(1 - bc / len(DESC_GROUPS), 0, 1)),
-                                     e[..., EDGE_DESC])
+        dist = np.sqrt(np.clip(1 - bc / len(DESCRIPTOR_GROUPS), 0, 1))
+        e[..., EDGE_DESC] = np.where(edge_mask > 0, dist, e[..., EDGE_DESC])
 
 
 def augment_batch(arrays: dict[str, np.ndarray], cfg: AppearanceAugment, rng: np.random.Generator) -> None:

@@ -157,6 +157,33 @@ def test_empty_and_degenerate_frames_never_raise():
     assert 0 not in frame.vehicle_box_index.tolist()
 
 
+def test_descriptors_are_shared_as_distributions_whatever_their_scale():
+    """A sender counting pixels instead of normalising, or leaving a group empty: the shared
+    descriptors are distributions per H, S, V group (the wire carries 0-1 a bin), so the
+    receiver reads the same appearance as from a normalised sender."""
+    f = make_frame(2, n_moving=4)
+    ref, _ = run(f)
+    counts = f.features * 500.0
+    counts[0, 16:24] = 0.0                                  # saturation not measured
+    counts[1, 3] = -2.0                                     # a negative bin
+    frame, _ = process_view(f.points, f.boxes, counts, f.camera, f.radar_height, 12.5)
+    np.testing.assert_array_equal(frame.vehicle_box_index, ref.vehicle_box_index)
+    got = {int(b): frame.vehicle_features[k] for k, b in enumerate(frame.vehicle_box_index)}
+    for k, b in enumerate(ref.vehicle_box_index):
+        want = ref.vehicle_features[k].copy()
+        if b == 0:
+            want[16:24] = 1 / 8
+        if b == 1:
+            want[:16] = np.clip(f.features[1, :16], 0, None)
+            want[3] = 0.0
+            want[:16] /= want[:16].sum()
+        np.testing.assert_allclose(got[int(b)], want, atol=1e-6)
+    for lo, hi in ((0, 16), (16, 24), (24, 32)):
+        np.testing.assert_allclose(frame.vehicle_features[:, lo:hi].sum(axis=1), 1.0, atol=1e-5)
+    back = decode(encode(frame)).vehicle_features
+    np.testing.assert_allclose(back, frame.vehicle_features, atol=1 / 255)
+
+
 def test_a_box_without_a_depth_is_placed_by_the_size_prior():
     """A detector without a depth output (0), or none for one box (NaN, negative): the box is
     still a vehicle, at the distance where a 1.5 m tall vehicle fills its pixel height; with

@@ -40,10 +40,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmatch.ego.base import DESC_GROUPS, descriptor_distance, detection_scores, radial_ground_speeds, \
-    unit_descriptor_groups
+from mmatch.ego.base import (descriptor_distance, detection_scores, radial_ground_speeds,
+                             unit_descriptor_groups)
 from mmatch.ego.observations import Observations, observe
 from mmatch.shared import CANONICAL_FOCAL_PX, SharedFrame
+from mmatch.types import DESCRIPTOR_DIM
 
 NODE_DIM = 48
 EDGE_DIM = 10
@@ -79,7 +80,7 @@ class CrossGraph:
 
 def hellinger_embedding(features: np.ndarray) -> np.ndarray:
     """(V, 32) descriptors -> (V, 32) sqrt histograms, unit length per H, S, V group."""
-    x = np.asarray(features, np.float64).reshape(-1, DESC_GROUPS[-1][1])
+    x = np.asarray(features, np.float64).reshape(-1, DESCRIPTOR_DIM)
     return np.concatenate(unit_descriptor_groups(x), axis=1)
 
 
