@@ -71,18 +71,23 @@ def _azimuth_noise(sigma_deg: float) -> Callable[[View, np.random.Generator], Vi
     return apply
 
 
-def _double_points(view: View, rng: np.random.Generator) -> View:
-    """Every return twice, the copy 0.1 m, 1 deg and 0.1 m/s apart (a denser radar)."""
-    p = np.array(view.points, np.float64)
-    r, az = np.hypot(p[:, 0], p[:, 1]), np.arctan2(p[:, 0], p[:, 1])
-    n = len(p)
-    r2 = r + 0.1 * rng.standard_normal(n)
-    az2 = az + np.radians(1.0) * rng.standard_normal(n)
-    copy = p.copy()
-    copy[:, 0], copy[:, 1] = r2 * np.sin(az2), r2 * np.cos(az2)
-    copy[:, 3] += 0.1 * rng.standard_normal(n)
-    labels = None if view.point_labels is None else np.concatenate([view.point_labels, view.point_labels])
-    return replace(view, points=np.concatenate([p, copy]).astype(np.float32), point_labels=labels)
+def _more_points(times: int) -> Callable[[View, np.random.Generator], View]:
+    """Every return `times` times, each copy 0.1 m, 1 deg and 0.1 m/s apart (a denser radar)."""
+    def apply(view: View, rng: np.random.Generator) -> View:
+        p = np.array(view.points, np.float64)
+        r, az = np.hypot(p[:, 0], p[:, 1]), np.arctan2(p[:, 0], p[:, 1])
+        n = len(p)
+        copies = [p]
+        for _ in range(times - 1):
+            r2 = r + 0.1 * rng.standard_normal(n)
+            az2 = az + np.radians(1.0) * rng.standard_normal(n)
+            copy = p.copy()
+            copy[:, 0], copy[:, 1] = r2 * np.sin(az2), r2 * np.cos(az2)
+            copy[:, 3] += 0.1 * rng.standard_normal(n)
+            copies.append(copy)
+        labels = None if view.point_labels is None else np.tile(view.point_labels, times)
+        return replace(view, points=np.concatenate(copies).astype(np.float32), point_labels=labels)
+    return apply
 
 
 HUE_BINS = DESCRIPTOR_GROUPS[0][1]     # the hue histogram: the first entries (DESIGN.md)
@@ -198,7 +203,9 @@ CHECKS: dict[str, Check] = {c.name: c for c in (
           _point_column(2, None)),
     Check("half-points", "shift", "every radar return kept with probability 0.5", _half_points),
     Check("double-points", "shift", "every radar return twice, the copy 0.1 m, 1 deg, 0.1 m/s apart (a denser radar)",
-          _double_points),
+          _more_points(2)),
+    Check("8x-points", "shift", "every radar return 8 times, the copies as double-points' (a much denser radar)",
+          _more_points(8)),
     Check("azimuth+1.5deg", "shift", "1.5 deg more azimuth noise on every return (an array beyond the family)",
           _azimuth_noise(1.5)),
     Check("descriptor-noise", "shift", "half of each descriptor histogram replaced by a random one (less appearance)",

@@ -150,7 +150,8 @@ class ViewProcessor:
 
 
 def _usable_points(points: np.ndarray, cfg: CavConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The rows of points (N, 5) that are finite and plausible (config `inputs`), and their indices."""
+    """The rows of points (N, 5) that are finite and plausible (config `inputs`), thinned to at
+    most `inputs.max_points`, and their indices."""
     lim = cfg.inputs
     with np.errstate(invalid="ignore"):
         usable = np.all(np.isfinite(points), axis=1) & np.all(np.abs(points[:, :3]) <= lim.max_range_m, axis=1) \
@@ -159,7 +160,23 @@ def _usable_points(points: np.ndarray, cfg: CavConfig) -> tuple[np.ndarray, np.n
     if len(rows) < len(points):
         log.debug("dropping %d non-finite or implausible points", len(points) - len(rows))
         points = points[rows]
+    if 0 < lim.max_points < len(points):
+        keep = np.sort(np.argsort(_point_hash(points), kind="stable")[:lim.max_points])
+        log.debug("thinning %d points to %d", len(points), len(keep))
+        points, rows = points[keep], rows[keep]
     return points, rows
+
+
+def _point_hash(points: np.ndarray) -> np.ndarray:
+    """(N,) uint64 pseudo-random keys of points (N, 5) from their values alone: a thinning by
+    them keeps the same points whatever order they come in."""
+    bits = np.ascontiguousarray(points, np.float32).view(np.uint32).astype(np.uint64)
+    h = np.full(len(points), 0x9E3779B97F4A7C15, np.uint64)
+    with np.errstate(over="ignore"):
+        for c in range(bits.shape[1]):
+            h = (h ^ bits[:, c]) * np.uint64(0xBF58476D1CE4E5B9)
+            h ^= h >> np.uint64(31)
+    return h
 
 
 def with_size_prior_depth(boxes: np.ndarray, K: np.ndarray, height_m: float) -> np.ndarray:

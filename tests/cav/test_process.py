@@ -184,6 +184,30 @@ def test_descriptors_are_shared_as_distributions_whatever_their_scale():
     np.testing.assert_allclose(back, frame.vehicle_features, atol=1 / 255)
 
 
+def test_a_dense_frame_is_thinned_to_the_same_points_whatever_their_order():
+    """A radar far denser than the models were fit on: at most inputs.max_points of its usable
+    returns go on, chosen by their values, so the shared frame does not depend on the order."""
+    f = make_frame(5, n_moving=5)
+    rng = np.random.default_rng(1)
+    pts = np.vstack([f.points] + [f.points + rng.normal(0, [0.05, 0.05, 0.02, 0.05, 0.5], f.points.shape)
+                                  for _ in range(7)]).astype(np.float32)
+    cfg = CavConfig(inputs=replace(CavConfig().inputs, max_points=300))
+    a, _ = process_view(pts, f.boxes, f.features, f.camera, f.radar_height, 1.0, config=cfg)
+    perm = rng.permutation(len(pts))
+    b, _ = process_view(pts[perm], f.boxes, f.features, f.camera, f.radar_height, 1.0, config=cfg)
+    np.testing.assert_array_equal(a.vehicle_box_index, b.vehicle_box_index)
+    np.testing.assert_array_equal(np.unique(a.vehicle_points, axis=0), np.unique(b.vehicle_points, axis=0))
+    np.testing.assert_array_equal(np.unique(a.background, axis=0), np.unique(b.background, axis=0))
+    out = run_view(pts, f.boxes, f.features, f.camera, f.radar_height, 1.0, config=cfg)
+    assert len(out.frame.vehicle_points) <= 300 < len(pts)
+    uncapped = CavConfig(inputs=replace(CavConfig().inputs, max_points=0))
+    full, _ = process_view(pts, f.boxes, f.features, f.camera, f.radar_height, 1.0, config=uncapped)
+    assert len(full.vehicle_points) > len(a.vehicle_points)
+    ref, _ = process_view(f.points, f.boxes, f.features, f.camera, f.radar_height, 1.0)
+    capped, _ = process_view(f.points, f.boxes, f.features, f.camera, f.radar_height, 1.0, config=cfg)
+    np.testing.assert_array_equal(ref.vehicle_points, capped.vehicle_points)     # within the cap: as it is
+
+
 def test_a_box_without_a_depth_is_placed_by_the_size_prior():
     """A detector without a depth output (0), or none for one box (NaN, negative): the box is
     still a vehicle, at the distance where a 1.5 m tall vehicle fills its pixel height; with

@@ -79,6 +79,9 @@ def test_each_check_rewrites_both_views_as_described(hard_dir):
     np.testing.assert_allclose(hue.ego.features[:, :16], np.roll(s.ego.features[:, :16], 1, axis=1))
     np.testing.assert_array_equal(hue.ego.features[:, 16:], s.ego.features[:, 16:])
     np.testing.assert_array_equal(hue.cav.features, s.cav.features)       # one camera unlike the other
+    many = perturb(s, CHECKS["8x-points"]).cav
+    assert len(many.points) == 8 * len(s.cav.points) and np.array_equal(many.points[:len(s.cav.points)], s.cav.points)
+    assert len(many.point_labels) == len(many.points)
     assert not perturb(s, CHECKS["no-depth"]).cav.boxes[:, 5].any()
     blank = perturb(s, CHECKS["no-colour"])
     assert not blank.ego.features.any() and not blank.cav.features.any()
