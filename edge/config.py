@@ -156,7 +156,7 @@ class EgoSection:
     history: int = _opt(16, lo=1, hi=1024, doc="CAV frames kept per sender (keep-newest ring)")
     wait_s: float = _opt(0.035, lo=0.0, hi=1.0,
                          doc="live only: wait for a CAV frame closer in time until own capture + this, s")
-    track_max_age_s: float = _opt(2.0, lo=0.0, hi=60.0,
+    track_max_age_s: float = _opt(0.5, lo=0.0, hi=60.0,
                                   doc="carry each CAV's transform across frames this long (0: off), s")
     confidence_threshold: float = _opt(-1.0, lo=-1.0, hi=1.0,
                                        doc="an estimate less sure than this (its published confidence: P within "

@@ -37,7 +37,7 @@ class SequenceEvalConfig:
     track_max_age_s: the tracking fuser's track age limit (the service's `ego.track_max_age_s`)."""
 
     eval: EvalConfig = field(default_factory=EvalConfig)
-    track_max_age_s: float = 2.0
+    track_max_age_s: float = 0.5
 
 
 def tracking_fuser(cfg: SequenceEvalConfig):

@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the files are sequences (meta.sequence / meta.frame): run each through one tracking "
                         "fuser in frame order, as the vehicle service does, beside the per-frame mode "
                         "(JSON: docs/formats.md)")
-    p.add_argument("--track-max-age", type=_nonneg, default=2.0, metavar="S",
+    p.add_argument("--track-max-age", type=_nonneg, default=0.5, metavar="S",
                    help="with --sequences: the tracking fuser's track age limit, s (the service's "
                         "ego.track_max_age_s)")
 

@@ -133,6 +133,18 @@ def test_prediction_follows_both_radars_motion():
     assert tr.track("cav") is None
 
 
+def test_frames_lost_for_more_than_half_a_second_end_the_track():
+    """TrackConfig's default max_age_s: 0.5 s of lost frames may hide a whole turn; the track
+    is dropped and starts again instead of publishing a stale prediction."""
+    w = World()
+    tr = Tracker(TrackConfig())
+    assert TrackConfig().max_age_s == 0.5
+    _commit(tr, w.frame("ego", 1.0, True), w.frame("cav", 1.0, True), w.truth(1.0, 1.0))
+    assert tr.predict(w.frame("ego", 1.45, True), w.frame("cav", 1.45, True)).prior_T is not None
+    assert tr.predict(w.frame("ego", 1.6, True), w.frame("cav", 1.6, True)).prior_T is None
+    assert tr.track("cav") is None
+
+
 def test_a_far_estimate_starts_a_rival_and_a_near_one_refines_the_track():
     w = World()
     tr = Tracker(TrackConfig(max_age_s=2.0))
