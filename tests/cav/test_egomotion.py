@@ -126,6 +126,11 @@ def test_config_rejects_unknown_keys_and_bad_values():
         CavConfig(egomotion=EgoMotionConfig(min_points=2))
     with pytest.raises(ConfigError, match="wire format"):
         CavConfig.from_dict({"inputs": {"max_range_m": 400}})
+    with pytest.raises(ConfigError, match="inputs.max_points"):
+        CavConfig.from_dict({"inputs": {"max_points": -1}})
+    with pytest.raises(ConfigError, match="inputs.unknown_depth_height_m"):
+        CavConfig.from_dict({"inputs": {"unknown_depth_height_m": -1.5}})
+    assert CavConfig.from_dict({"inputs": {"max_points": 0, "unknown_depth_height_m": 0}}).inputs.max_points == 0
 
 
 def test_forward_motion_prior_rejects_a_platoon_only_frame():
