@@ -38,8 +38,9 @@ class TrackConfig:
     drives each of seeds 500 and 600 with 1 s of frames removed, 2 s published 12 and 6 frames
     13-42 deg off at 0.62-0.99 after the gap, 0.5 s none (tracked success 0.757 -> 0.667, 0.810
     -> 0.780: the track starts again); widening the yaw and yaw rates by the time lost instead
-    left 5 and 0 (0.698, 0.855). The drives without a gap track identically (seeds 400-900). full_search_every: frames between full searches while
-    tracking (and only while the best hypothesis is believed at least quick_belief); agree_m / agree_deg: two transforms this close agree; prior_belief: a best hypothesis at least this believed seeds the matcher;
+    left 5 and 0 (0.698, 0.855). The drives without a gap track identically (seeds 400-900).
+    full_search_every: frames between full searches while tracking (and only while the best
+    hypothesis is believed at least quick_belief); agree_m / agree_deg: two transforms this close agree; prior_belief: a best hypothesis at least this believed seeds the matcher;
     min_hits: a hypothesis is published once this many frames have confirmed it (one
     frame's confident mistake is not, two agreeing frames are); sure_at_once: a hypothesis is
     also published at once when its confidence reaches this (0.9, chosen on the tuning drives
