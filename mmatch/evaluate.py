@@ -49,6 +49,9 @@ class EvalConfig:
     measure 1 (within the content band). depth_along_axis: (ego, cav) whether the camera's depths
     run along its optical axis (turned into distances before the scale); measured with the
     scales when those are None.
+    doppler_sign: +1 reads the radar points as DESIGN.md defines Doppler (positive = range
+    increasing), -1 the other way round; None: `evaluate_dir` (and `mmatch eval --sequences`)
+    judge it on the folder from how its radars move (cav/doppler_sign.py), a single scene uses +1.
     """
 
     matcher: str = DEFAULT_MATCHER
@@ -60,6 +63,7 @@ class EvalConfig:
     heading_prior: bool = True
     depth_scale: tuple[float, float] | None = None
     depth_along_axis: tuple[bool, bool] = (False, False)
+    doppler_sign: int | None = None
 
 
 _FUSERS: dict = {}
@@ -77,6 +81,10 @@ def _fuser(cfg: EvalConfig):
 
 
 def _views(scene: Scene, cfg: EvalConfig, processors: tuple | None = None):
+    if cfg.doppler_sign is not None and cfg.doppler_sign < 0:
+        from mmatch.cav.doppler_sign import with_sign
+        scene = replace(scene, ego=replace(scene.ego, points=with_sign(scene.ego.points, -1)),
+                        cav=replace(scene.cav, points=with_sign(scene.cav.points, -1)))
     cal_e, cal_c = _calibrations(cfg)
     if cfg.cav == "labels":
         from mmatch.label_frames import shared_from_labels
@@ -105,17 +113,21 @@ def _calibrated(view, calibration):
     return view if boxes is view.boxes else replace(view, boxes=np.asarray(boxes, np.float32))
 
 
-def scene_depth_evidence(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+def scene_depth_evidence(scene: Scene, doppler_sign: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """The (ego, cav) cameras' depth evidence of one frame pair (cav/depth_scale.py
-    `box_depth_evidence`, as the CAV-side processing computes it)."""
+    `box_depth_evidence`, as the CAV-side processing computes it), its radar points read with
+    `doppler_sign` (cav/doppler_sign.py)."""
+    from mmatch.cav.doppler_sign import with_sign
     from mmatch.cav.process import depth_evidence
-    return tuple(depth_evidence(v.points, v.boxes, v.features, v.camera) for v in (scene.ego, scene.cav))
+    return tuple(depth_evidence(with_sign(v.points, doppler_sign), v.boxes, v.features, v.camera)
+                 for v in (scene.ego, scene.cav))
 
 
-def _file_depth_evidence(path: str) -> tuple[np.ndarray, np.ndarray] | None:
+def _file_depth_evidence(task: tuple[str, int]) -> tuple[np.ndarray, np.ndarray] | None:
     from mmatch.scene_io import load_scene
+    path, sign = task
     try:
-        return scene_depth_evidence(load_scene(path))
+        return scene_depth_evidence(load_scene(path), sign)
     except MMatchError:                                     # reported by the evaluation
         return None
 
@@ -131,22 +143,59 @@ def depth_calibrations(evidence: list) -> tuple:
     return tuple(calibrate(side, along=along) for side in sides)
 
 
-def folder_depth_calibration(files: list[str], jobs: int = 1) -> tuple:
-    """The (ego, cav) cameras' `DepthCalibration`s from every frame pair of a folder (no labels)."""
+def folder_depth_calibration(files: list[str], jobs: int = 1, doppler_sign: int = 1) -> tuple:
+    """The (ego, cav) cameras' `DepthCalibration`s from every frame pair of a folder (no labels),
+    its radar points read with `doppler_sign`."""
+    tasks = [(f, doppler_sign) for f in files]
     if jobs > 1 and len(files) > 1:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            evidence = list(pool.map(_file_depth_evidence, files, chunksize=8))
+            evidence = list(pool.map(_file_depth_evidence, tasks, chunksize=8))
     else:
-        evidence = [_file_depth_evidence(f) for f in files]
+        evidence = [_file_depth_evidence(t) for t in tasks]
     return depth_calibrations(evidence)
 
 
+def _file_sign_votes(path: str) -> tuple[float, float]:
+    from mmatch.cav.doppler_sign import sign_vote
+    from mmatch.scene_io import load_scene
+    try:
+        scene = load_scene(path)
+    except MMatchError:                                     # reported by the evaluation
+        return float("nan"), float("nan")
+    return sign_vote(scene.ego.points), sign_vote(scene.cav.points)
+
+
+def folder_doppler_sign(files: list[str], jobs: int = 1) -> int:
+    """The Doppler sign of a folder's radars (cav/doppler_sign.py `judge_sign`, both views'
+    frames together: one folder, one producer)."""
+    from mmatch.cav.doppler_sign import judge_sign
+    if jobs > 1 and len(files) > 1:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            votes = list(pool.map(_file_sign_votes, files, chunksize=8))
+    else:
+        votes = [_file_sign_votes(f) for f in files]
+    return judge_sign(v for pair in votes for v in pair)
+
+
+def with_doppler_sign(cfg: EvalConfig, files: list[str], jobs: int = 1) -> EvalConfig:
+    """`cfg` with its Doppler sign judged on `files` where it leaves it None."""
+    if cfg.doppler_sign is not None:
+        return cfg
+    sign = folder_doppler_sign(files, jobs)
+    if sign < 0:
+        log.warning("the radars' motion explains these files' Doppler only with the other sign: it is read "
+                    "negated (DESIGN.md: positive = range increasing)")
+    return replace(cfg, doppler_sign=sign)
+
+
 def with_folder_calibration(cfg: EvalConfig, files: list[str], jobs: int = 1) -> EvalConfig:
-    """`cfg` with its descriptor and depth scales measured on `files` where it leaves them None."""
+    """`cfg` with its Doppler sign, descriptor and depth scales measured on `files` where it
+    leaves them None."""
+    cfg = with_doppler_sign(cfg, files, jobs)
     if cfg.descriptor_scale is None:
         cfg = replace(cfg, descriptor_scale=folder_descriptor_scale(files))
     if cfg.depth_scale is None:
-        cal = folder_depth_calibration(files, jobs)
+        cal = folder_depth_calibration(files, jobs, cfg.doppler_sign or 1)
         cfg = replace(cfg, depth_scale=tuple(c.scale for c in cal), depth_along_axis=tuple(c.along_axis for c in cal))
         log.info("camera depth scales (ego, cav): %.3f, %.3f; along the optical axis: %s, %s",
                  *cfg.depth_scale, *cfg.depth_along_axis)

@@ -15,13 +15,13 @@ import json
 import logging
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from mmatch.errors import MMatchError, SceneFormatError
-from mmatch.evaluate import EvalConfig, evaluate_with, prepare_scene, report
+from mmatch.evaluate import EvalConfig, evaluate_with, prepare_scene, report, with_doppler_sign
 from mmatch.metrics import is_gross
 from mmatch.ego.track.objects import object_rows, track_record
 from mmatch.object_eval import objects_report
@@ -150,6 +150,7 @@ def evaluate_sequences_dir(folder: str | Path, cfg: SequenceEvalConfig = Sequenc
     results by mode). Sequences run in the order of their ids."""
     files = sorted(str(p) for p in Path(folder).glob("*.npz"))
     groups, rejected = group_sequences(files)
+    cfg = replace(cfg, eval=with_doppler_sign(cfg.eval, files, jobs))
     tasks = [([f for _, f in groups[s]], cfg) for s in sorted(groups)]
     results: dict[str, list[dict]] = {m: [] for m in MODES}
 

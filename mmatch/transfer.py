@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from mmatch.cav.depth_scale import box_bearings
+from mmatch.cav.doppler_sign import judge_sign, sign_vote
 from mmatch.errors import ConfigError, MMatchError
 from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_with, report, scene_depth_evidence
 from mmatch.scene_io import load_scene
@@ -155,6 +156,13 @@ def _point_column(col: int, offset: float | None) -> Callable[[View, np.random.G
     return apply
 
 
+def _doppler_flipped(view: View, rng: np.random.Generator) -> View:
+    """Doppler with the other sign convention (positive = range decreasing)."""
+    points = np.array(view.points, np.float32)
+    points[:, 3] = -points[:, 3]
+    return replace(view, points=points)
+
+
 def _box_permutation(view: View, rng: np.random.Generator) -> np.ndarray:
     return rng.permutation(len(view.boxes))
 
@@ -186,6 +194,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in (
           _shuffled),
     Check("box-order", "invariance", "detections (boxes, descriptors, ids) in a random order",
           box_order=_box_permutation),
+    Check("doppler-sign", "invariance", "Doppler with the other sign (positive = range decreasing), "
+          "judged on the folder", _doppler_flipped),
     Check("scores-0.6", "shift", "detection scores x 0.6 (a detector calibrated lower)",
           _box_column(4, 0.6)),
     Check("depth-0.85", "shift", "monocular depth x 0.85 (a biased depth estimate)",
@@ -267,16 +277,18 @@ def _evaluate(task: tuple[str, str, EvalConfig]) -> dict:
     return out
 
 
-def _depth_evidence(task: tuple[str, str]) -> tuple[np.ndarray, np.ndarray] | None:
-    """One scene's camera depth evidence under one check (None: no scene)."""
+def _depth_evidence(task: tuple[str, str]) -> tuple[dict, tuple[float, float]]:
+    """One scene's camera depth evidence under one check, by Doppler sign ({1: ..., -1: ...};
+    None: no scene), and its two radars' votes on that sign (cav/doppler_sign.py; NaN: none)."""
     path, name = task
     try:
         scene = load_scene(path)
         if name != NONE:
             scene, _ = _perturbed(scene, CHECKS[name])
-        return scene_depth_evidence(scene)
+        return ({s: scene_depth_evidence(scene, s) for s in (1, -1)},
+                (sign_vote(scene.ego.points), sign_vote(scene.cav.points)))
     except MMatchError:
-        return None
+        return {1: None, -1: None}, (float("nan"), float("nan"))
 
 
 def _changed(a: list[dict], b: list[dict]) -> int:
@@ -321,12 +333,18 @@ def run_transfer(folder: str | Path, checks: list[str], cfg: EvalConfig = EvalCo
     results: list[dict] = []
     with ProcessPoolExecutor(max_workers=jobs) if jobs > 1 else _Serial() as pool:
         cfgs = {n: cfg for n in names}
-        if cfg.depth_scale is None:             # each check's cameras calibrated on its own scenes
-            evidence = list(pool.map(_depth_evidence, [(f, n) for n in names for f in files], chunksize=4))
+        if cfg.depth_scale is None or cfg.doppler_sign is None:
+            # each check's cameras calibrated, and its Doppler sign judged, on its own scenes
+            found = list(pool.map(_depth_evidence, [(f, n) for n in names for f in files], chunksize=4))
             for i, n in enumerate(names):
-                cal = depth_calibrations(evidence[i * len(files):(i + 1) * len(files)])
-                cfgs[n] = replace(cfg, depth_scale=tuple(c.scale for c in cal),
-                                  depth_along_axis=tuple(c.along_axis for c in cal))
+                block = found[i * len(files):(i + 1) * len(files)]
+                if cfg.doppler_sign is None:
+                    cfgs[n] = replace(cfgs[n], doppler_sign=judge_sign(s for _, pair in block for s in pair))
+                if cfg.depth_scale is None:
+                    sign = cfgs[n].doppler_sign or 1
+                    cal = depth_calibrations([e[sign] for e, _ in block])
+                    cfgs[n] = replace(cfgs[n], depth_scale=tuple(c.scale for c in cal),
+                                      depth_along_axis=tuple(c.along_axis for c in cal))
         tasks = [(f, n, replace(cfgs[n], cav=cav))
                  for n in names for cav in ("pipeline", "labels") for f in files]
         for k, r in enumerate(pool.map(_evaluate, tasks, chunksize=4)):

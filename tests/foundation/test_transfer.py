@@ -91,6 +91,44 @@ def test_each_check_rewrites_both_views_as_described(hard_dir):
         np.testing.assert_array_equal(getattr(s.ego, k), v)
 
 
+def test_each_frame_votes_for_the_doppler_sign_its_radar_motion_explains(hard_dir):
+    """cav/doppler_sign.py: a moving radar's frame fits DESIGN.md's sign, the same frame negated
+    the other one; a folder flips only when nearly all of at least MIN_FRAMES votes say so."""
+    from mmatch.cav.doppler_sign import MIN_FRAMES, judge_sign, sign_vote, with_sign
+    from mmatch.evaluate import folder_doppler_sign
+    files = sorted(str(f) for f in hard_dir.glob("*.npz"))[:6]
+    views = [v for f in files for v in (load_scene(f).ego, load_scene(f).cav)]
+    votes = np.array([sign_vote(v.points) for v in views])
+    flipped = np.array([sign_vote(with_sign(v.points, -1)) for v in views])
+    assert np.all(votes[np.isfinite(votes)] == 1) and np.isfinite(votes).sum() >= MIN_FRAMES
+    np.testing.assert_array_equal(flipped, -votes)
+    assert judge_sign(votes) == 1 and judge_sign(flipped) == -1
+    assert judge_sign(flipped[:MIN_FRAMES - 1]) == 1                       # too few to say
+    assert judge_sign(list(flipped[:9]) + [1.0, 1.0]) == 1                # not nearly all
+    assert folder_doppler_sign(files) == 1
+
+
+def test_eval_reads_a_folder_of_the_other_doppler_sign_as_it_reads_ours(hard_dir, tmp_path):
+    """`mmatch eval` judges the sign on the folder: a copy with every Doppler negated gives the
+    same per-scene results; told the sign (EvalConfig.doppler_sign = 1), it reads it as given."""
+    from mmatch.evaluate import EvalConfig, evaluate_dir
+    from mmatch.scene_io import save_scene
+    for f in sorted(hard_dir.glob("*.npz"))[:6]:
+        sc = load_scene(f)
+        save_scene(tmp_path / f.name, perturb(sc, CHECKS["doppler-sign"]))
+    src = tmp_path / "src"
+    src.mkdir()
+    for f in sorted(hard_dir.glob("*.npz"))[:6]:
+        (src / f.name).write_bytes(f.read_bytes())
+    keys = ("status", "box_pairs", "T_ego_cav", "confidence")
+    _, ours = evaluate_dir(src)
+    rep, theirs = evaluate_dir(tmp_path)
+    assert [tuple(r[k] for k in keys) for r in ours] == [tuple(r[k] for k in keys) for r in theirs]
+    assert rep["config"]["doppler_sign"] == -1
+    _, forced = evaluate_dir(tmp_path, EvalConfig(doppler_sign=1))
+    assert [tuple(r[k] for k in keys) for r in forced] != [tuple(r[k] for k in keys) for r in ours]
+
+
 def test_unknown_checks_are_refused_by_name():
     assert parse_checks("point-order, scores-0.6") == ["point-order", "scores-0.6"]
     with pytest.raises(ConfigError, match="--checks: unknown.*'colour'"):
@@ -101,9 +139,10 @@ def test_invariances_hold_and_shifts_are_measured(hard_dir, tmp_path):
     """The same estimates through a camera of twice the resolution and with the radar points in
     another order, with our CAV side and with perfect separation (whose background reaches the
     Ego in the scene file's order: the Ego reads it in its canonical order)."""
-    out = run_transfer(hard_dir, ["resolution-2x", "point-order", "half-points"], max_scenes=6)
-    assert out["scenes"] == 6 and list(out["checks"]) == ["none", "resolution-2x", "point-order", "half-points"]
-    for name in ("resolution-2x", "point-order"):
+    out = run_transfer(hard_dir, ["resolution-2x", "point-order", "doppler-sign", "half-points"], max_scenes=6)
+    assert out["scenes"] == 6
+    assert list(out["checks"]) == ["none", "resolution-2x", "point-order", "doppler-sign", "half-points"]
+    for name in ("resolution-2x", "point-order", "doppler-sign"):
         e = out["checks"][name]
         assert e["kind"] == "invariance"
         assert e["pipeline"]["changed_scenes"] == 0 and e["labels"]["changed_scenes"] == 0, (name, e)
@@ -133,11 +172,11 @@ def test_the_table_says_how_sure_each_check_leaves_the_output():
 
 def test_invariances_hold_on_wide_hard_scenes(wide_hard_dir):
     """The gate on what the physics family does not vary: 80 wide hard scenes through a camera
-    of twice the resolution, with their points shuffled and with their detections shuffled give
-    the same status, pairs and transform in every scene, with our CAV side and with perfect
-    separation."""
-    out = run_transfer(wide_hard_dir, ["resolution-2x", "point-order", "box-order"], jobs=2)
-    for name in ("resolution-2x", "point-order", "box-order"):
+    of twice the resolution, with their points shuffled, with their detections shuffled and with
+    their Doppler of the other sign (judged on the folder) give the same status, pairs and
+    transform in every scene, with our CAV side and with perfect separation."""
+    out = run_transfer(wide_hard_dir, ["resolution-2x", "point-order", "box-order", "doppler-sign"], jobs=2)
+    for name in ("resolution-2x", "point-order", "box-order", "doppler-sign"):
         e = out["checks"][name]
         assert (e["pipeline"]["changed_scenes"], e["labels"]["changed_scenes"]) == (0, 0), (name, e)
 
