@@ -33,7 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_scene_options(p: argparse.ArgumentParser) -> None:
     """The options of how scene files are run that `mmatch eval` and `mmatch report` share:
-    --cav, --descriptor-scale, --depth-scale, --confidence-threshold, --no-heading-prior."""
+    --cav, --descriptor-scale, --depth-scale, --doppler-sign, --confidence-threshold,
+    --no-heading-prior."""
     p.add_argument("--cav", default="pipeline", choices=["pipeline", "labels"],
                    help="pipeline: CAV-side processing; labels: perfect separation from the files' labels")
     p.add_argument("--descriptor-scale", type=_scale, default=1.0, metavar="auto|FACTOR",
@@ -45,6 +46,10 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
                         "turned into distances (1 within the spread of calibrated cameras; "
                         "with --sequences over each sequence's frames so far, as the vehicle service "
                         "does); one factor for both cameras, or the Ego's and the CAV's")
+    p.add_argument("--doppler-sign", type=_doppler_sign, default=None, metavar="auto|1|-1",
+                   help="how the files' Doppler counts: 1 as DESIGN.md (positive = range increasing), -1 "
+                        "the other way round; auto (default): judged on the folder from which sign its "
+                        "radars' ego-motion fits explain")
     p.add_argument("--confidence-threshold", type=unit_interval, default=None, metavar="P",
                    help="estimates less sure than P (0-1) are 'no estimate'; default: the fitted model's "
                         "threshold; 0 emits every estimate")
@@ -75,6 +80,14 @@ def _scale(text: str) -> float | None:
     return v
 
 
+def _doppler_sign(text: str) -> int | None:
+    if text == "auto":
+        return None
+    if text not in ("1", "-1", "+1"):
+        raise argparse.ArgumentTypeError(f"expected auto, 1 or -1, got {text!r}")
+    return int(text)
+
+
 def _depth_scale(text: str) -> tuple[float, float] | None:
     if text == "auto":
         return None
@@ -103,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(why)
     cfg = EvalConfig(matcher=args.matcher, aligner=args.aligner, cav=args.cav,
                      descriptor_scale=args.descriptor_scale, confidence_threshold=args.confidence_threshold,
-                     heading_prior=args.heading_prior, depth_scale=args.depth_scale)
+                     heading_prior=args.heading_prior, depth_scale=args.depth_scale,
+                     doppler_sign=args.doppler_sign)
     if args.sequences:
         return _run_sequences(args, cfg)
     rep, results = evaluate_dir(args.folder, cfg, args.jobs, Progress("eval"))

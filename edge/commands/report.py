@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"report: {len(methods)} methods on {args.folder} ({args.jobs} jobs)", flush=True)
     base = EvalConfig(cav=args.cav, descriptor_scale=args.descriptor_scale,
                       confidence_threshold=args.confidence_threshold, heading_prior=args.heading_prior,
-                      depth_scale=args.depth_scale)
+                      depth_scale=args.depth_scale, doppler_sign=args.doppler_sign)
     run_ = evaluate_methods(args.folder, methods, base, args.jobs, Progress("report"))
     for m, why in run_.skipped:
         print(f"skipped {m.key}: {why}", file=sys.stderr)

@@ -210,6 +210,18 @@ def test_cli_takes_a_depth_scale_and_refuses_a_bad_one(hard_dir, tmp_path, capsy
         assert "--depth-scale" in capsys.readouterr().err
 
 
+def test_cli_takes_a_doppler_sign_and_refuses_a_bad_one(hard_dir, tmp_path, capsys):
+    out = tmp_path / "rep.json"
+    assert main(["eval", str(hard_dir), "--doppler-sign", "-1", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["config"]["doppler_sign"] == -1
+    assert main(["eval", str(hard_dir), "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["config"]["doppler_sign"] == 1             # judged: ours
+    for bad in ("0", "2", "minus"):
+        with pytest.raises(SystemExit):
+            main(["eval", str(hard_dir), "--doppler-sign", bad])
+        assert "--doppler-sign" in capsys.readouterr().err
+
+
 def test_the_vehicle_service_reports_its_camera_depth_scale(short_dir):
     """The product pipeline's CAV side calibrates its camera, and the node's health says by how much."""
     from mmatch.edge import config
