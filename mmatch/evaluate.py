@@ -51,7 +51,8 @@ class EvalConfig:
     scales when those are None.
     doppler_sign: +1 reads the radar points as DESIGN.md defines Doppler (positive = range
     increasing), -1 the other way round; None: `evaluate_dir` (and `mmatch eval --sequences`)
-    judge it on the folder from how its radars move (cav/doppler_sign.py), a single scene uses +1.
+    judge it on the folder by which sign its radars' ego-motion fits explain
+    (cav/doppler_sign.py), a single scene uses +1.
     """
 
     matcher: str = DEFAULT_MATCHER
