@@ -147,13 +147,15 @@ def depth_calibrations(evidence: list) -> tuple:
 def folder_depth_calibration(files: list[str], jobs: int = 1, doppler_sign: int = 1) -> tuple:
     """The (ego, cav) cameras' `DepthCalibration`s from every frame pair of a folder (no labels),
     its radar points read with `doppler_sign`."""
-    tasks = [(f, doppler_sign) for f in files]
-    if jobs > 1 and len(files) > 1:
+    return depth_calibrations(_map_files(_file_depth_evidence, [(f, doppler_sign) for f in files], jobs))
+
+
+def _map_files(fn: Callable, tasks: list, jobs: int) -> list:
+    """fn over a folder's per-file tasks, in worker processes when jobs > 1."""
+    if jobs > 1 and len(tasks) > 1:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            evidence = list(pool.map(_file_depth_evidence, tasks, chunksize=8))
-    else:
-        evidence = [_file_depth_evidence(t) for t in tasks]
-    return depth_calibrations(evidence)
+            return list(pool.map(fn, tasks, chunksize=8))
+    return [fn(t) for t in tasks]
 
 
 def _file_sign_votes(path: str) -> tuple[float, float]:
@@ -170,12 +172,7 @@ def folder_doppler_sign(files: list[str], jobs: int = 1) -> int:
     """The Doppler sign of a folder's radars (cav/doppler_sign.py `judge_sign`, both views'
     frames together: one folder, one producer)."""
     from mmatch.cav.doppler_sign import judge_sign
-    if jobs > 1 and len(files) > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            votes = list(pool.map(_file_sign_votes, files, chunksize=8))
-    else:
-        votes = [_file_sign_votes(f) for f in files]
-    return judge_sign(v for pair in votes for v in pair)
+    return judge_sign(v for pair in _map_files(_file_sign_votes, files, jobs) for v in pair)
 
 
 def with_doppler_sign(cfg: EvalConfig, files: list[str], jobs: int = 1) -> EvalConfig:

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from mmatch.cav.depth_scale import box_bearings
-from mmatch.cav.doppler_sign import judge_sign, sign_vote
+from mmatch.cav.doppler_sign import judge_sign, sign_vote, with_sign
 from mmatch.errors import ConfigError, MMatchError
 from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_with, report, scene_depth_evidence
 from mmatch.scene_io import load_scene
@@ -158,9 +158,7 @@ def _point_column(col: int, offset: float | None) -> Callable[[View, np.random.G
 
 def _doppler_flipped(view: View, rng: np.random.Generator) -> View:
     """Doppler with the other sign convention (positive = range decreasing)."""
-    points = np.array(view.points, np.float32)
-    points[:, 3] = -points[:, 3]
-    return replace(view, points=points)
+    return replace(view, points=with_sign(view.points, -1))
 
 
 def _box_permutation(view: View, rng: np.random.Generator) -> np.ndarray:
@@ -277,7 +275,7 @@ def _evaluate(task: tuple[str, str, EvalConfig]) -> dict:
     return out
 
 
-def _depth_evidence(task: tuple[str, str]) -> tuple[dict, tuple[float, float]]:
+def _calibration_evidence(task: tuple[str, str]) -> tuple[dict, tuple[float, float]]:
     """One scene's camera depth evidence under one check, by Doppler sign ({1: ..., -1: ...};
     None: no scene), and its two radars' votes on that sign (cav/doppler_sign.py; NaN: none)."""
     path, name = task
@@ -335,7 +333,7 @@ def run_transfer(folder: str | Path, checks: list[str], cfg: EvalConfig = EvalCo
         cfgs = {n: cfg for n in names}
         if cfg.depth_scale is None or cfg.doppler_sign is None:
             # each check's cameras calibrated, and its Doppler sign judged, on its own scenes
-            found = list(pool.map(_depth_evidence, [(f, n) for n in names for f in files], chunksize=4))
+            found = list(pool.map(_calibration_evidence, [(f, n) for n in names for f in files], chunksize=4))
             for i, n in enumerate(names):
                 block = found[i * len(files):(i + 1) * len(files)]
                 if cfg.doppler_sign is None:
