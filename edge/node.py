@@ -420,7 +420,8 @@ class Node:
                 "budget_skipped": c.budget_skipped, "links_expired": c.links_expired,
                 "links": {n: {"up": s.up, "gaps": s.gaps, "confidence": s.confidence,
                               "ambiguity": s.ambiguity} for n, s in self.links.items()},
-                "camera_depth_scale": _depth_scale(self.pipeline)}
+                "camera_depth_scale": _depth_scale(self.pipeline),
+                "input_repairs": _input_repairs(self.pipeline)}
 
 
 def _depth_scale(pipeline: Pipeline) -> float | None:
@@ -428,6 +429,14 @@ def _depth_scale(pipeline: Pipeline) -> float | None:
     mmatch/cav/depth_scale.py); None when the pipeline keeps none."""
     scale = getattr(getattr(pipeline.process_view, "depth", None), "scale", None)
     return None if scale is None else round(float(scale), 4)
+
+
+def _input_repairs(pipeline: Pipeline) -> dict[str, int] | None:
+    """What the CAV side repaired in this vehicle's own inputs so far, by kind (returns dropped
+    or thinned, box depths from the size prior, descriptors rescaled: mmatch/cav/process.py
+    REPAIRS); None when the pipeline counts none."""
+    repairs = getattr(pipeline.process_view, "repairs", None)
+    return None if repairs is None else {k: int(v) for k, v in repairs.items()}
 
 
 def comparable(msg: dict) -> dict:

@@ -32,7 +32,8 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, replace
+from collections import Counter
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -78,6 +79,9 @@ def _check_inputs(points, boxes, features) -> tuple[np.ndarray, np.ndarray, np.n
     return points, boxes, features
 
 
+REPAIRS = ("points_dropped", "points_thinned", "depths_by_size_prior", "descriptors_rescaled")
+
+
 @dataclass
 class CavProducts:
     """Everything `run_view` computes for one frame (the shared frame plus diagnostics).
@@ -90,6 +94,9 @@ class CavProducts:
         without a moving point).
     depth_evidence: float64 (B, 2) the evidence on the camera's depth calibration, from the
         boxes as detected (cav/depth_scale.py `box_depth_evidence`).
+    repairs: what the frame's inputs needed before use, as counts (REPAIRS): returns dropped
+        (non-finite or implausible) and thinned (above `inputs.max_points`), box depths placed
+        by the size prior, descriptors rescaled into distributions.
     """
 
     frame: SharedFrame
@@ -99,6 +106,7 @@ class CavProducts:
     point_vehicle: np.ndarray
     vehicle_moving: np.ndarray
     depth_evidence: np.ndarray
+    repairs: dict[str, int] = field(default_factory=dict)
 
 
 def process_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera: CameraModel,
@@ -127,12 +135,15 @@ def process_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, ca
 class ViewProcessor:
     """`process_view` for one camera over a run: its depth scale calibrated from the frames so
     far (cav/depth_scale.py `RunningDepthScale`), as the vehicle service runs the CAV side.
-    Called with process_view's arguments; the scale of the frames before applies to each frame."""
+    Called with process_view's arguments; the scale of the frames before applies to each frame.
+    `repairs` counts over the run what the inputs needed (CavProducts.repairs); the first frame
+    needing each kind is logged as a warning (a producer sending such input sends it again)."""
 
     def __init__(self, config: CavConfig | None = None, depth: RunningDepthScale | None = None) -> None:
         self.config = config
         self.depth = depth or RunningDepthScale()
         self._reported = self.depth.calibration
+        self.repairs: Counter[str] = Counter({k: 0 for k in REPAIRS})   # over the run, per kind
 
     def __call__(self, points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera: CameraModel,
                  radar_height: float, stamp: float, *, sender: str = "cav",
@@ -140,6 +151,11 @@ class ViewProcessor:
         cal = self.depth.calibration
         out = run_view(points, boxes, features, camera, radar_height, stamp, sender=sender, seq=seq,
                        config=self.config, depth_scale=cal.scale, depth_along_axis=cal.along_axis)
+        for kind, n in out.repairs.items():
+            if n and not self.repairs[kind]:
+                log.warning("inputs: %s in frame %s/%d (%d); counted in health as node.input_repairs",
+                            kind.replace("_", " "), sender, seq, n)
+            self.repairs[kind] += n
         new = self.depth.update(out.depth_evidence)
         was = self._reported
         if abs(np.log(new.scale / was.scale)) > 0.01 or new.along_axis != was.along_axis:   # news
@@ -149,22 +165,23 @@ class ViewProcessor:
         return out.frame, out.timings
 
 
-def _usable_points(points: np.ndarray, cfg: CavConfig) -> tuple[np.ndarray, np.ndarray]:
+def _usable_points(points: np.ndarray, cfg: CavConfig) -> tuple[np.ndarray, np.ndarray, int]:
     """The rows of points (N, 5) that are finite and plausible (config `inputs`), thinned to at
-    most `inputs.max_points`, and their indices."""
+    most `inputs.max_points`; their indices; and how many were plausible before the thinning."""
     lim = cfg.inputs
     with np.errstate(invalid="ignore"):
         usable = np.all(np.isfinite(points), axis=1) & np.all(np.abs(points[:, :3]) <= lim.max_range_m, axis=1) \
             & (np.abs(points[:, 3]) <= lim.max_doppler_mps)
     rows = np.flatnonzero(usable)
-    if len(rows) < len(points):
-        log.debug("dropping %d non-finite or implausible points", len(points) - len(rows))
+    plausible = len(rows)
+    if plausible < len(points):
+        log.debug("dropping %d non-finite or implausible points", len(points) - plausible)
         points = points[rows]
-    if 0 < lim.max_points < len(points):
+    if 0 < lim.max_points < plausible:
         keep = np.sort(np.argsort(_point_hash(points), kind="stable")[:lim.max_points])
-        log.debug("thinning %d points to %d", len(points), len(keep))
+        log.debug("thinning %d points to %d", plausible, len(keep))
         points, rows = points[keep], rows[keep]
-    return points, rows
+    return points, rows, plausible
 
 
 def _point_hash(points: np.ndarray) -> np.ndarray:
@@ -204,7 +221,7 @@ def depth_evidence(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, 
     the CAV side: the ego-motion fit and the projection only (a folder's first pass)."""
     cfg = config or CavConfig()
     points, boxes, _ = _check_inputs(points, boxes, features)
-    points, _ = _usable_points(points, cfg)
+    points, _, _ = _usable_points(points, cfg)
     moving = fit_egomotion(points, cfg.egomotion, cfg.radar).moving
     proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
     return box_depth_evidence(boxes, proj, moving, camera.K)
@@ -219,10 +236,11 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     if not (np.isfinite(depth_scale) and depth_scale > 0):
         raise CavInputError(f"depth_scale must be a positive factor, got {depth_scale!r}")
     points, boxes, features = _check_inputs(points, boxes, features)
+    given = features
     features = normalised_descriptors(features)       # the wire carries distributions (0-1 a bin)
     n_in = len(points)
     lim = cfg.inputs
-    points, rows = _usable_points(points, cfg)
+    points, rows, plausible = _usable_points(points, cfg)
     timings: dict[str, float] = {}
 
     # ---- 1. ego-motion: stationary vs moving
@@ -236,7 +254,13 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     proj = project(points[:, :3], camera, cfg.separation.min_camera_z_m) if len(points) else None
     depth_evidence = box_depth_evidence(boxes, proj, moving, camera.K)   # from the depths as detected
     boxes = DepthCalibration(float(depth_scale), bool(depth_along_axis)).apply(boxes, camera.K)
-    boxes = with_size_prior_depth(boxes, camera.K, lim.unknown_depth_height_m)
+    with np.errstate(invalid="ignore"):
+        no_depth = ~(boxes[:, 5] > 0)
+        boxes = with_size_prior_depth(boxes, camera.K, lim.unknown_depth_height_m)
+        repairs = {"points_dropped": n_in - plausible, "points_thinned": plausible - len(rows),
+                   "depths_by_size_prior": int(np.sum(no_depth & (boxes[:, 5] > 0))),
+                   "descriptors_rescaled": int(np.sum(np.any(features != given, axis=1)
+                                                      & np.all(np.isfinite(given), axis=1)))}
     # a corner beyond float32 in the canonical image becomes inf there and fails max_pixel below
     with np.errstate(invalid="ignore", over="ignore"):
         canon = canonical_boxes(boxes, camera.K)             # what the wire carries of each box
@@ -350,4 +374,4 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
     point_vehicle = np.full(n_in, -1, np.int32)
     point_vehicle[rows[veh_idx]] = vidx
     return CavProducts(frame=frame, timings=timings, ego=ego, rows=rows, point_vehicle=point_vehicle,
-                       vehicle_moving=vehicle_moving, depth_evidence=depth_evidence)
+                       vehicle_moving=vehicle_moving, depth_evidence=depth_evidence, repairs=repairs)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from mmatch.cav.config import BackgroundConfig, CavConfig
 from mmatch.cav.plausibility import duplicates
-from mmatch.cav.process import STAGES, CavInputError, process_view, run_view
+from mmatch.cav.process import REPAIRS, STAGES, CavInputError, ViewProcessor, process_view, run_view
 from mmatch.codec import decode, encode
 
 from .synth import STATIONARY, make_frame
@@ -230,6 +230,34 @@ def test_a_box_without_a_depth_is_placed_by_the_size_prior():
     off = CavConfig(inputs=replace(CavConfig().inputs, unknown_depth_height_m=0.0))
     frame, _ = process_view(f.points, boxes, f.features, f.camera, f.radar_height, 12.5, config=off)
     assert frame.num_vehicles == 0
+
+
+def test_what_the_inputs_needed_is_counted_per_frame_and_over_a_run(caplog):
+    """Each repair the CAV side makes to its inputs is counted: returns dropped (non-finite,
+    implausible) or thinned, depths placed by the size prior, descriptors rescaled; a frame
+    that needed none counts none; a run adds them up and warns once per kind."""
+    f = make_frame(4, n_moving=5)
+    clean = run_view(f.points, f.boxes, f.features, f.camera, f.radar_height, 1.0)
+    assert clean.repairs == {k: 0 for k in REPAIRS}
+    pts = f.points.copy()
+    pts[0, 3], pts[1, 0], pts[2, 4] = np.nan, 5000.0, np.inf
+    boxes, feats = f.boxes.copy(), f.features.copy()
+    boxes[0, 5], boxes[1, 5] = 0.0, np.nan
+    feats[2] *= 300.0
+    cfg = CavConfig(inputs=replace(CavConfig().inputs, max_points=len(pts) - 13))
+    out = run_view(pts, boxes, feats, f.camera, f.radar_height, 1.0, config=cfg)
+    assert out.repairs == {"points_dropped": 3, "points_thinned": 10, "depths_by_size_prior": 2,
+                           "descriptors_rescaled": 1}
+    proc = ViewProcessor(cfg)
+    with caplog.at_level("WARNING", logger="mmatch.cav.process"):
+        for k in range(3):
+            proc(pts, boxes, feats, f.camera, f.radar_height, 0.05 * k, sender="cav1", seq=k)
+            proc(f.points, f.boxes, f.features, f.camera, f.radar_height, 0.05 * k + 0.025, sender="cav1", seq=k)
+    want = {k: 3 * v for k, v in out.repairs.items()}
+    want["points_thinned"] += 3 * 13                        # the clean frames exceed the cap too
+    assert dict(proc.repairs) == want
+    warned = [r.getMessage() for r in caplog.records if r.getMessage().startswith("inputs:")]
+    assert len(warned) == 4 and all("cav1/0" in m for m in warned)
 
 
 @pytest.mark.parametrize("points, boxes, features", [

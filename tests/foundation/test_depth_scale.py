@@ -236,6 +236,14 @@ def test_the_vehicle_service_reports_its_camera_depth_scale(short_dir):
     for k, v in enumerate(views):
         node.process(SensorFrame(seq=k, stamp=float(k) * 0.05, points=v.points, boxes=v.boxes, features=v.features))
     assert 1.05 < node.summary()["camera_depth_scale"] < 1.2
+    assert node.summary()["input_repairs"] == {"points_dropped": 0, "points_thinned": 0,
+                                               "depths_by_size_prior": 0, "descriptors_rescaled": 0}
+    v = views[0]
+    boxes = v.boxes.copy()
+    boxes[:, 5] = 0.0                                     # a detector without depths
+    node.process(SensorFrame(seq=len(views), stamp=len(views) * 0.05, points=v.points, boxes=boxes,
+                             features=v.features))
+    assert node.summary()["input_repairs"]["depths_by_size_prior"] == len(boxes)
 
 
 def test_frames_in_order_calibrate_as_the_service_does(short_dir):
