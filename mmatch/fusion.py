@@ -400,7 +400,7 @@ def _other_hypotheses(match: MatchResult, R: np.ndarray, t: np.ndarray, n: int, 
     (a flip, a crossing, a slide): the consensus score ranks such a rival below its own
     neighbours, so the n best alone rarely include it. The arbiter weighs each with evidence the
     score lacks (ego/confidence.py); with the truth among the candidates it picks it often
-    (README, "Which candidates the arbiter weighs"). Only rivals scoring at least min_share of
+    (docs/method.md, "Which candidates the arbiter weighs"). Only rivals scoring at least min_share of
     the best hypothesis' score are weighed: each costs a confidence assessment (about 0.5 ms),
     and weaker ones are hardly ever chosen (on wide hard seeds 1, 3, 4, shares 0 / 0.5 / 0.6 /
     0.7 / 0.8 gave pair F1 0.933 / 0.933 / 0.934 / 0.934 / 0.931 and candidates grossly wrong

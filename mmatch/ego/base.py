@@ -132,7 +132,7 @@ class FarSideModel:
     clipped to [min_m, max_m]. Fit as the median regression of the along-ray offsets that the
     true pairs of 1000 `--physics wide` hard scenes need to meet (triangulated under the true
     transform; seeds 1, 3, 4, 100, 102, 103, 2196 vehicles): mean absolute error 0.857 m for
-    the best constant, 0.772 m for this. Measured end to end in the README ("Where a vehicle's
+    the best constant, 0.772 m for this. Measured end to end in docs/method.md ("Where a vehicle's
     centre lies").
     """
 
@@ -330,7 +330,7 @@ def crossing_allowance(own: SharedFrame, other: SharedFrame,
     k: the directions of travel a quarter turn apart) therefore admit band_deg more (a crossing
     at 45-135 deg with a 10 deg gate); the same-road ones (k = 0, 2) do not. Only the
     velocities tell a crossing from the same road: the road axes hold modulo 90 deg, so without
-    the velocities (None) every candidate keeps the plain gate (README, "Oblique junctions")."""
+    the velocities (None) every candidate keeps the plain gate (docs/method.md, "Oblique junctions")."""
     if velocity_heading_yaws(own, other) is None or band_deg <= 0:
         return None
     return np.radians(band_deg) * (np.arange(4) % 2)
