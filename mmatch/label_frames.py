@@ -12,14 +12,15 @@ import numpy as np
 
 from mmatch.cav.config import InputConfig
 from mmatch.cav.egomotion import fit_egomotion
-from mmatch.cav.process import with_size_prior_depth
+from mmatch.cav.process import moving_sketch, with_size_prior_depth
 from mmatch.errors import SceneFormatError
 from mmatch.shared import SharedFrame, canonical_boxes
 from mmatch.types import View, normalised_descriptors
 
 
 def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
-    """Vehicles = every correctly detected box (parked cars too) with its labelled points; background = label -1.
+    """Vehicles = every correctly detected box (parked cars too) with its labelled points; background = label -1;
+    the moving sketch = the returns the ego-motion fit calls moving that no shared vehicle owns.
     A box without a depth is placed by the CAV side's size prior (`with_size_prior_depth`), and
     descriptors are made distributions as the CAV side makes them (`normalised_descriptors`)."""
     if view.point_labels is None or view.box_ids is None:
@@ -36,6 +37,7 @@ def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
         centers.append(_box_centre(view, b))
     bg = view.points[lab == -1, :3]
     ego = fit_egomotion(view.points)
+    shared_ids = ids[keep] if keep else np.zeros(0, ids.dtype)
     return SharedFrame(
         sender=sender, seq=seq, stamp=view.stamp, radar_height=view.radar_height,
         ego_velocity=ego.velocity if ego.ok else np.full(2, np.nan),
@@ -45,7 +47,8 @@ def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
         vehicle_box_index=np.array(keep, np.int32),
         vehicle_centers=np.array(centers, np.float32).reshape(-1, 2),
         vehicle_features=normalised_descriptors(view.features[keep]),
-        background=bg.astype(np.float32))
+        background=bg.astype(np.float32),
+        moving=moving_sketch(view.points, ego.moving & ~np.isin(lab, shared_ids)))
 
 
 def _box_centre(view: View, b: int) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Wire codec of the shared frame (version 2): round trip to the quantisation step, caps, the
+"""Wire codec of the shared frame (version 3; version 2 still read): round trip to the quantisation step, caps, the
 signature covering every byte before it, and no malformed frame accepted. (Forged, tampered,
 replayed and stale frames are the receiver's checks: tests/edge/test_edge_auth.py.)"""
 
@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mmatch.codec import (BACKGROUND_DTYPE, MAGIC, POINT_DTYPE, SIGNATURE_BYTES, VEHICLE_DTYPE,
+from mmatch.codec import (BACKGROUND_DTYPE, MAGIC, MOVING_DTYPE, POINT_DTYPE, SIGNATURE_BYTES, VEHICLE_DTYPE,
                           EncodeError, Limits, OverCaps, decode, encode, header, split_signature)
 from mmatch.errors import DecodeError
 from mmatch.shared import SharedFrame
@@ -22,7 +22,8 @@ STEP_POS, STEP_DOP, STEP_PX, STEP_DEPTH, STEP_SNR = 0.01, 0.01, 0.5, 0.01, 0.5
 STEP_U8 = 1 / 255
 
 
-def make_frame(seed: int = 0, V: int = 4, K: int = 17, B: int = 50, sender: str = "cav-7") -> SharedFrame:
+def make_frame(seed: int = 0, V: int = 4, K: int = 17, B: int = 50, sender: str = "cav-7",
+               M: int = 0) -> SharedFrame:
     rng = np.random.default_rng(seed)
     index = np.sort(rng.integers(0, V, K)).astype(np.int32) if V else np.zeros(0, np.int32)
     feats = np.hstack([rng.dirichlet(np.ones(16), V), rng.dirichlet(np.ones(8), V),
@@ -40,7 +41,8 @@ def make_frame(seed: int = 0, V: int = 4, K: int = 17, B: int = 50, sender: str 
                        vehicle_box_index=np.arange(V, dtype=np.int32) * 2,
                        vehicle_centers=rng.uniform(-50, 90, (V, 2)).astype(np.float32),
                        vehicle_features=feats.astype(np.float32),
-                       background=rng.uniform(-100, 100, (B, 3)).astype(np.float32))
+                       background=rng.uniform(-100, 100, (B, 3)).astype(np.float32),
+                       moving=rng.uniform(-90, 90, (M, 2)).astype(np.float32))
 
 
 def assert_round_trip(a: SharedFrame, b: SharedFrame) -> None:
@@ -58,6 +60,7 @@ def assert_round_trip(a: SharedFrame, b: SharedFrame) -> None:
     assert np.all(np.abs(b.vehicle_boxes[:, 4] - a.vehicle_boxes[:, 4]) <= half * STEP_U8)
     assert np.all(np.abs(b.vehicle_boxes[:, 5] - a.vehicle_boxes[:, 5]) <= half * STEP_DEPTH)
     np.testing.assert_array_equal(b.vehicle_box_index, a.vehicle_box_index)
+    assert b.moving.shape == a.moving.shape and np.all(np.abs(b.moving - a.moving) <= half * STEP_POS)
     assert np.all(np.abs(b.vehicle_centers - a.vehicle_centers) <= half * STEP_POS)
     assert np.all(np.abs(b.vehicle_features - a.vehicle_features) <= half * STEP_U8)
     assert np.all(np.abs(b.background - a.background) <= half * STEP_POS)
@@ -67,13 +70,36 @@ def assert_round_trip(a: SharedFrame, b: SharedFrame) -> None:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_round_trip_exact_to_the_quantisation_step(seed):
-    a = make_frame(seed)
+    a = make_frame(seed, M=seed * 7)
     data = encode(a)
-    assert len(data) == (4 + 1 + 1 + 4 + 8 + 1 + len(a.sender) + 8 + 8 + 4 + 2 * 2 + 3 * 2 + 64
+    assert data[4] == 3                          # format version 3
+    assert len(data) == (4 + 1 + 1 + 4 + 8 + 1 + len(a.sender) + 8 + 8 + 4 + 2 * 2 + 4 * 2 + 64
                          + 4 * VEHICLE_DTYPE.itemsize + 17 * POINT_DTYPE.itemsize
-                         + 50 * BACKGROUND_DTYPE.itemsize)
+                         + 50 * BACKGROUND_DTYPE.itemsize + seed * 7 * MOVING_DTYPE.itemsize)
     assert_round_trip(a, decode(data))
     assert encode(decode(data)) == data          # quantised values are a fixed point
+
+
+def as_version_2(data: bytes) -> bytes:
+    """A version-3 frame without moving points rewritten as version 2 (no moving count)."""
+    slen = data[18]
+    counts_end = 19 + slen + 8 + 8 + 4 + 4 + 6           # V, K, B; M follows
+    assert data[counts_end:counts_end + 2] == b"\x00\x00"
+    body = data[:4] + bytes([2]) + data[5:counts_end] + data[counts_end + 2:-SIGNATURE_BYTES]
+    return _reseal(body)
+
+
+def test_a_version_2_frame_is_still_read_with_an_empty_moving_sketch():
+    """A fleet upgrades one vehicle at a time: version-2 frames (no moving count, no moving
+    records) decode as before; the header says which version came."""
+    a = make_frame(5)
+    old = as_version_2(encode(a))
+    assert len(old) == len(encode(a)) - 2
+    b = decode(old)
+    assert_round_trip(a, b)
+    assert b.moving.shape == (0, 2) and header(old).version == 2 and header(encode(a)).version == 3
+    with pytest.raises(DecodeError, match="version 4"):
+        decode(_reseal(encode(a)[:4] + bytes([4]) + encode(a)[5:-SIGNATURE_BYTES]))
 
 
 def test_round_trip_unsorted_points_come_back_grouped_by_vehicle():
@@ -190,13 +216,13 @@ def test_counts_are_checked_against_the_bytes():
     body = data[:-64]
     meta = 4 + 1 + 1 + 4 + 8 + 1 + 1         # header + key id + sender length + "c"
     counts_at = meta + 8 + 8 + 4 + 4         # seq, stamp, height, velocity
-    for k in range(3):                       # V, K, B each off by one
+    for k in range(4):                       # V, K, B, M each off by one
         bad = bytearray(body)
         bad[counts_at + 2 * k] += 1
         with pytest.raises(DecodeError, match="counts"):
             decode(_reseal(bytes(bad)))
     # one vehicle claims one point more: the byte sizes agree, the per-vehicle sum does not
-    veh_at = counts_at + 6
+    veh_at = counts_at + 8
     n_points_at = veh_at + 8 + 1 + 2 + 2
     bad = bytearray(body)
     bad[n_points_at] += 1
@@ -234,18 +260,18 @@ def test_a_5000_vehicle_frame_is_refused_at_decode_before_its_records_are_read()
 
 
 @pytest.mark.parametrize("kw, message", [
-    ({"V": 5}, "5 vehicles"), ({"K": 11}, "11 points"), ({"B": 11}, "11 background"),
+    ({"V": 5}, "5 vehicles"), ({"K": 11}, "11 points"), ({"B": 11}, "11 background"), ({"M": 11}, "11 moving"),
 ])
 def test_counts_over_the_caps_are_refused(kw, message):
-    limits = Limits(max_vehicles=4, max_points=10, max_background=10)
-    a = make_frame(2, V=kw.get("V", 2), K=kw.get("K", 3), B=kw.get("B", 3))
+    limits = Limits(max_vehicles=4, max_points=10, max_background=10, max_moving=10)
+    a = make_frame(2, V=kw.get("V", 2), K=kw.get("K", 3), B=kw.get("B", 3), M=kw.get("M", 3))
     with pytest.raises(OverCaps, match=message):
         decode(encode(a), limits)
 
 
-@pytest.mark.parametrize("field", ["vehicle_points", "vehicle_centers", "background", "depth"])
+@pytest.mark.parametrize("field", ["vehicle_points", "vehicle_centers", "background", "moving", "depth"])
 def test_positions_beyond_the_radar_range_are_refused(field):
-    a = make_frame(3, V=2, K=3, B=3)
+    a = make_frame(3, V=2, K=3, B=3, M=3)
     if field == "depth":
         a.vehicle_boxes[0, 5] = 160.0
     else:

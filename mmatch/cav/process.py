@@ -48,7 +48,7 @@ from mmatch.cav.membership import CandidateScene, assign, box_features, candidat
 from mmatch.cav.membership import load_model as load_membership
 from mmatch.cav.plausibility import duplicates, see_through
 from mmatch.errors import MMatchError
-from mmatch.shared import SharedFrame, canonical_boxes
+from mmatch.shared import MOVING_SKETCH_MAX, SharedFrame, canonical_boxes
 from mmatch.types import DESCRIPTOR_DIM, CameraModel, normalised_descriptors
 
 log = logging.getLogger(__name__)
@@ -194,6 +194,16 @@ def _point_hash(points: np.ndarray) -> np.ndarray:
             h = (h ^ bits[:, c]) * np.uint64(0xBF58476D1CE4E5B9)
             h ^= h >> np.uint64(31)
     return h
+
+
+def moving_sketch(points: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """float32 (M, 2) x, y of the points (N, 5) `which` (bool (N,)): the moving returns shared
+    beside the vehicles, at most MOVING_SKETCH_MAX, chosen by `_point_hash` when more (the same
+    returns whatever their order)."""
+    idx = np.flatnonzero(which)
+    if len(idx) > MOVING_SKETCH_MAX:
+        idx = np.sort(idx[np.argsort(_point_hash(points[idx]), kind="stable")[:MOVING_SKETCH_MAX]])
+    return points[idx, :2].astype(np.float32)
 
 
 def with_size_prior_depth(boxes: np.ndarray, K: np.ndarray, height_m: float) -> np.ndarray:
@@ -368,6 +378,7 @@ def run_view(points: np.ndarray, boxes: np.ndarray, features: np.ndarray, camera
         vehicle_centers=centres.astype(np.float32),
         vehicle_features=features[vbox].astype(np.float32),
         background=background,
+        moving=moving_sketch(points, moving & ~is_vehicle_point),
     )
     if not ego.ok:
         log.debug("frame %s/%d: ego-motion %s (%s)", sender, seq, ego.status.value, ego.reason)

@@ -66,7 +66,7 @@ FEATURES: tuple[str, ...] = (
     "n_pairs", "pair_chi2", "margin", "has_alternative", "sighting", "sighting_conflict",
     "doppler_plausible", "doppler_tested", "doppler_heading_deg", "free_space_violation", "bg_overlap",
     "bg_overlap_back", "log_pos_sigma", "log_yaw_sigma", "bg_linearity", "yaw_gap_deg", "n_background",
-    "covisible_missed", "rmnet_support", "rmnet_pair_score",
+    "covisible_missed", "rmnet_support", "rmnet_pair_score", "moving_agreement",
 )
 # which evidence a refusal names when it weighs most against the estimate
 REASONS: dict[str, str] = {
@@ -77,7 +77,7 @@ REASONS: dict[str, str] = {
     "bg_overlap_back": "poor fit", "log_pos_sigma": "symmetric background",
     "log_yaw_sigma": "symmetric background", "bg_linearity": "symmetric background",
     "yaw_gap_deg": "poor fit", "n_background": "too few vehicles", "covisible_missed": "poor fit",
-    "rmnet_support": "poor fit", "rmnet_pair_score": "poor fit",
+    "rmnet_support": "poor fit", "rmnet_pair_score": "poor fit", "moving_agreement": "poor fit",
 }
 
 
@@ -124,8 +124,11 @@ class ConfidenceConfig:
     of the other view counts as the one it saw; max_speed_mps:
     a ground velocity above this is implausible; min_speed_mps: a slower one has no
     direction to compare with the road's (doppler_heading_deg); slides_m: slide alternatives
-    along the background's main direction; inflation: factor on the covariance (None: the
-    fitted model's); model_path: the fitted probability model (None: the packaged one)."""
+    along the background's main direction; moving_half_fov_deg / moving_range_m /
+    moving_gate_m: where a radar sees moving returns and how near another view's must land to
+    agree with one (moving_agreement: a vehicle moves by its speed times the stamp difference,
+    up to 1.5 m at 30 m/s and 50 ms); inflation: factor on the covariance (None: the fitted
+    model's); model_path: the fitted probability model (None: the packaged one)."""
 
     threshold: float | None = None
     min_margin: float | None = None
@@ -151,6 +154,9 @@ class ConfidenceConfig:
     max_speed_mps: float = 40.0
     min_speed_mps: float = 2.0
     slides_m: tuple[float, ...] = (-24.0, -9.0, 9.0, 24.0)
+    moving_half_fov_deg: float = 60.0
+    moving_range_m: float = 90.0
+    moving_gate_m: float = 2.0
     inflation: float | None = None
     model_path: str | None = None
     # The camera estimate of a vehicle with points costs 2 squared Mahalanobis units here and
@@ -396,6 +402,9 @@ class PairContext:
         self.ge, self.ue = radial_ground_speeds(own)
         self.gc, self.uc = radial_ground_speeds(other)
         self.ne, self.nc = point_counts(own), point_counts(other)
+        self.mov_own, self.mov_other = _moving_returns(own), _moving_returns(other)
+        self.mov_tree_own = cKDTree(self.mov_own) if len(self.mov_own) else None
+        self.mov_tree_other = cKDTree(self.mov_other) if len(self.mov_other) else None
         ours = np.vstack([self.bg_own, own.vehicle_points[:, :2]]).astype(float)
         self.free = _FreeSpace(ours) if len(ours) >= 5 else None
         if len(self.bg_own) >= 3:
@@ -860,8 +869,41 @@ def _features(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray 
         "covisible_missed": np.minimum(missed, 6.0),
         "rmnet_support": np.minimum(rm_support, 8.0),
         "rmnet_pair_score": rm_pair,
+        "moving_agreement": _moving_agreement(ctx, R, t, cfg),
     }
     return np.column_stack([cols[k] for k in FEATURES]), cov, amb, assigned
+
+
+def _moving_returns(frame: SharedFrame) -> np.ndarray:
+    """(N, 2) float64 x, y of what the frame's radar saw move: its vehicles' points and its
+    moving sketch (parked cars' points among them: both radars see those too)."""
+    return np.vstack([frame.vehicle_points[:, :2], frame.moving]).astype(float)
+
+
+def _in_radar_view(p: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
+    """(...,) whether points p (..., 2) of a radar's frame lie where it sees moving things."""
+    r = np.hypot(p[..., 0], p[..., 1])
+    return (np.abs(np.degrees(np.arctan2(p[..., 0], p[..., 1]))) < cfg.moving_half_fov_deg) \
+        & (r < cfg.moving_range_m) & (r > 1.0)
+
+
+def _moving_agreement(ctx: PairContext, R: np.ndarray, t: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
+    """(H,) 0-1: of the moving returns of each view that hypothesis R (H, 2, 2), t (H, 2) puts
+    inside the other radar's view, the share with one of the other's moving returns within
+    `moving_gate_m` (both directions pooled; 0 when none falls in view). Under the right pose
+    the vehicles both radars see, boxed or not, land on each other; a slide or a turn that
+    lays two pairs on each other moves the rest of the traffic off."""
+    H = len(R)
+    if ctx.mov_tree_own is None or ctx.mov_tree_other is None:
+        return np.zeros(H)
+    theirs = ctx.mov_other @ R.transpose(0, 2, 1) + t[:, None]                 # (H, N, 2) own frame
+    ours = (ctx.mov_own[None] - t[:, None]) @ R                                 # (H, M, 2) their frame
+    a, b = _in_radar_view(theirs, cfg), _in_radar_view(ours, cfg)
+    da, _ = ctx.mov_tree_own.query(theirs.reshape(-1, 2), distance_upper_bound=cfg.moving_gate_m)
+    db, _ = ctx.mov_tree_other.query(ours.reshape(-1, 2), distance_upper_bound=cfg.moving_gate_m)
+    hit = (np.isfinite(da).reshape(H, -1) & a).sum(axis=1) + (np.isfinite(db).reshape(H, -1) & b).sum(axis=1)
+    n = a.sum(axis=1) + b.sum(axis=1)
+    return np.where(n > 0, hit / np.maximum(n, 1), 0.0)
 
 
 def evidence(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndarray,

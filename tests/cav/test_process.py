@@ -13,6 +13,7 @@ from mmatch.cav.config import BackgroundConfig, CavConfig
 from mmatch.cav.plausibility import duplicates
 from mmatch.cav.process import REPAIRS, STAGES, CavInputError, ViewProcessor, process_view, run_view
 from mmatch.codec import decode, encode
+from mmatch.shared import MOVING_SKETCH_MAX
 
 from .synth import STATIONARY, make_frame
 
@@ -230,6 +231,28 @@ def test_a_box_without_a_depth_is_placed_by_the_size_prior():
     off = CavConfig(inputs=replace(CavConfig().inputs, unknown_depth_height_m=0.0))
     frame, _ = process_view(f.points, boxes, f.features, f.camera, f.radar_height, 12.5, config=off)
     assert frame.num_vehicles == 0
+
+
+def test_moving_returns_no_vehicle_holds_are_shared_as_the_moving_sketch():
+    """The moving returns the frame shares beside its vehicles: those the ego-motion fit calls
+    moving that no shared vehicle owns; at most MOVING_SKETCH_MAX, the same whatever the order."""
+    f = make_frame(6, n_moving=5)
+    out = run_view(f.points, f.boxes, f.features, f.camera, f.radar_height, 1.0)
+    moving = out.ego.moving
+    owned = out.point_vehicle[out.rows] >= 0
+    want = f.points[out.rows][moving & ~owned, :2]
+    np.testing.assert_array_equal(np.unique(out.frame.moving, axis=0), np.unique(want, axis=0))
+    assert len(out.frame.moving) > 0
+    rng = np.random.default_rng(2)
+    extra = np.column_stack([rng.uniform(-30, 30, 200), rng.uniform(10, 80, 200), np.zeros(200),
+                             rng.uniform(5, 9, 200), np.full(200, 20.0)]).astype(np.float32)
+    pts = np.vstack([f.points, extra])
+    a = run_view(pts, f.boxes, f.features, f.camera, f.radar_height, 1.0).frame.moving
+    perm = rng.permutation(len(pts))
+    b = run_view(pts[perm], f.boxes, f.features, f.camera, f.radar_height, 1.0).frame.moving
+    assert len(a) == MOVING_SKETCH_MAX
+    np.testing.assert_array_equal(np.unique(a, axis=0), np.unique(b, axis=0))
+    np.testing.assert_allclose(decode(encode(out.frame)).moving, out.frame.moving, atol=0.005)
 
 
 def test_what_the_inputs_needed_is_counted_per_frame_and_over_a_run(caplog):
