@@ -32,8 +32,7 @@ depth +-0.5 cm (0-655.35 m); score +-1/510; snr +-0.25 dB, clipped to 0-127.5 dB
 non-negative); descriptor bins +-1/510 each, clipped to 0-1, so a decoded group sums to 1
 only within 16/510 (hue) or 8/510 (saturation, value); radar height is float32 (+-6e-8
 relative); stamp is exact. A vehicle record costs 51 bytes, a point 9, a background point 6,
-a moving point 4;
-header, meta and signature 119 bytes plus the sender.
+a moving point 4; header, meta and signature 115 bytes plus the sender (113 in version 2).
 
 Caps (`Limits`): a frame is about one radar's view, so decoding refuses more than
 `max_vehicles` vehicles, `max_points` vehicle points, `max_background` background points or
