@@ -37,7 +37,6 @@ def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
         centers.append(_box_centre(view, b))
     bg = view.points[lab == -1, :3]
     ego = fit_egomotion(view.points)
-    shared_ids = ids[keep] if keep else np.zeros(0, ids.dtype)
     return SharedFrame(
         sender=sender, seq=seq, stamp=view.stamp, radar_height=view.radar_height,
         ego_velocity=ego.velocity if ego.ok else np.full(2, np.nan),
@@ -48,7 +47,7 @@ def shared_from_labels(view: View, sender: str, seq: int = 0) -> SharedFrame:
         vehicle_centers=np.array(centers, np.float32).reshape(-1, 2),
         vehicle_features=normalised_descriptors(view.features[keep]),
         background=bg.astype(np.float32),
-        moving=moving_sketch(view.points, ego.moving & ~np.isin(lab, shared_ids)))
+        moving=moving_sketch(view.points, ego.moving & ~np.isin(lab, np.asarray(ids)[keep])))
 
 
 def _box_centre(view: View, b: int) -> np.ndarray:

@@ -178,7 +178,7 @@ def _usable_points(points: np.ndarray, cfg: CavConfig) -> tuple[np.ndarray, np.n
         log.debug("dropping %d non-finite or implausible points", len(points) - plausible)
         points = points[rows]
     if 0 < lim.max_points < plausible:
-        keep = np.sort(np.argsort(_point_hash(points), kind="stable")[:lim.max_points])
+        keep = _hash_subset(points, lim.max_points)
         log.debug("thinning %d points to %d", plausible, len(keep))
         points, rows = points[keep], rows[keep]
     return points, rows, plausible
@@ -196,13 +196,18 @@ def _point_hash(points: np.ndarray) -> np.ndarray:
     return h
 
 
+def _hash_subset(points: np.ndarray, n: int) -> np.ndarray:
+    """Ascending indices of n of the points (N, 5), N > n, chosen by `_point_hash`."""
+    return np.sort(np.argsort(_point_hash(points), kind="stable")[:n])
+
+
 def moving_sketch(points: np.ndarray, which: np.ndarray) -> np.ndarray:
     """float32 (M, 2) x, y of the points (N, 5) `which` (bool (N,)): the moving returns shared
     beside the vehicles, at most MOVING_SKETCH_MAX, chosen by `_point_hash` when more (the same
     returns whatever their order)."""
     idx = np.flatnonzero(which)
     if len(idx) > MOVING_SKETCH_MAX:
-        idx = np.sort(idx[np.argsort(_point_hash(points[idx]), kind="stable")[:MOVING_SKETCH_MAX]])
+        idx = idx[_hash_subset(points[idx], MOVING_SKETCH_MAX)]
     return points[idx, :2].astype(np.float32)
 
 

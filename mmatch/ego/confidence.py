@@ -882,9 +882,8 @@ def _moving_returns(frame: SharedFrame) -> np.ndarray:
 
 def _in_radar_view(p: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
     """(...,) whether points p (..., 2) of a radar's frame lie where it sees moving things."""
-    r = np.hypot(p[..., 0], p[..., 1])
-    return (np.abs(np.degrees(np.arctan2(p[..., 0], p[..., 1]))) < cfg.moving_half_fov_deg) \
-        & (r < cfg.moving_range_m) & (r > 1.0)
+    r, az = _polar(p)
+    return (np.abs(az) < np.radians(cfg.moving_half_fov_deg)) & (r < cfg.moving_range_m) & (r > 1.0)
 
 
 def _moving_agreement(ctx: PairContext, R: np.ndarray, t: np.ndarray, cfg: ConfidenceConfig) -> np.ndarray:
