@@ -220,7 +220,7 @@ class Fuser:
         sure = dict(confidence=published_confidence(a.confidence, ccfg, heading), covariance=a.covariance,
                     ambiguity=a.ambiguity, evidence=a.features, candidates=cands)
         thr = self._threshold if heading else self._threshold_no_heading
-        why = refusal(a.confidence, a.features, thr, ccfg)
+        why = refusal(a.confidence, a.features, thr, ccfg, len(match.pairs))
         if why is not None:
             # not sure enough, the matcher's own evidence prefers a distinct alternative (two
             # judges disagree: ambiguous), or one unconfirmed pair carries it; the vehicles both

@@ -124,14 +124,14 @@ def gated_threshold(families: list[list[dict]], max_gross: float, cfg: Confidenc
     per family, its emitted share, success and gross rate there (a threshold above every gross
     estimate holds by emitting nothing; 1.0 when none below 1 does)."""
     rows = [[(float(np.nan_to_num(r["confidence"], nan=-1.0)), r.get("evidence") or {},
-              bool(r["candidate"]["gross"]), bool(r["candidate"]["success"]))
+              bool(r["candidate"]["gross"]), bool(r["candidate"]["success"]), r.get("predicted"))
              for r in fam if r.get("candidate") and r.get("confidence") is not None] for fam in families]
     sizes = [max(len(fam), 1) for fam in families]
 
     def outcome(thr: float) -> list[dict]:
         out = []
         for fam, n in zip(rows, sizes):
-            kept = [(g, ok) for c, ev, g, ok in fam if refusal(c, ev, thr, cfg) is None]
+            kept = [(g, ok) for c, ev, g, ok, n in fam if refusal(c, ev, thr, cfg, n) is None]
             gross = sum(g for g, _ in kept)
             out.append(dict(emitted=len(kept) / n, success=sum(ok for _, ok in kept) / n,
                             gross=gross / len(kept) if kept else 0.0))

@@ -271,16 +271,19 @@ def test_a_vehicle_the_other_should_see_and_does_not_is_counted(cav_y, cav_sees,
     assert dict(zip(FEATURES, X[0]))["covisible_missed"] == missed
 
 
-@pytest.mark.parametrize("n_pairs, sighting, confidence, threshold, status", [
-    (1, 0, 0.65, None, "no-estimate"),     # one unconfirmed pair, sure by the model: not sure enough
-    (0, -1, 0.70, None, "no-estimate"),
-    (1, 1, 0.65, None, "fused"),           # the other vehicle seen where the estimate puts it
-    (2, 0, 0.65, None, "fused"),           # two pairs
-    (1, 0, 0.80, None, "fused"),           # above the single-pair threshold
-    (1, 0, 0.65, 0.0, "fused"),            # threshold 0 emits everything
+@pytest.mark.parametrize("n_pairs, sighting, confidence, threshold, published, status", [
+    (1, 0, 0.65, None, 1, "no-estimate"),     # one unconfirmed pair, sure by the model: not sure enough
+    (0, -1, 0.70, None, 0, "no-estimate"),
+    (1, 1, 0.65, None, 1, "fused"),           # the other vehicle seen where the estimate puts it
+    (2, 0, 0.65, None, 2, "fused"),           # two pairs
+    (1, 0, 0.80, None, 1, "fused"),           # above the single-pair threshold
+    (1, 0, 0.65, 0.0, 1, "fused"),            # threshold 0 emits everything
+    (1, 0, 0.65, None, 2, "fused"),           # weighed on one pair, but its transform implies two
+    (1, -1, 0.65, None, 3, "no-estimate"),    # ... where the other vehicle should be seen and is not
 ])
 def test_an_estimate_on_one_unconfirmed_pair_needs_the_single_pair_threshold(monkeypatch, n_pairs, sighting,
-                                                                             confidence, threshold, status):
+                                                                             confidence, threshold, published,
+                                                                             status):
     from mmatch.ego.confidence import Assessment, ConfidenceConfig
     from mmatch.fusion import FusionConfig, Fuser
     from mmatch.label_frames import shared_from_labels
@@ -292,11 +295,12 @@ def test_an_estimate_on_one_unconfirmed_pair_needs_the_single_pair_threshold(mon
         a = Assessment(confidence, np.eye(3) * 0.01, 0.0, "poor fit",
                        dict.fromkeys(FEATURES, 0.0) | {"n_pairs": float(n_pairs), "sighting": float(sighting),
                                                        "margin": 1.0})
-        return aligned.T, a, [(aligned.T, a)], np.zeros((0, 2), np.int32)
+        return aligned.T, a, [(aligned.T, a)], np.zeros((published, 2), np.int32)    # the count matters
 
     monkeypatch.setattr(fuser, "_arbitrate", arbitrate)
     res = fuser.fuse(shared_from_labels(scene.ego, "ego"), shared_from_labels(scene.cav, "cav"))
     assert res.status == status, res.reason
+    assert len(res.pairs) == published
     if status == "no-estimate":
         assert res.reason == "too few vehicles" and res.refused_T is not None
 
@@ -346,14 +350,18 @@ def test_refusal_names_the_gate_a_single_frame_fails():
     assert refusal(0.80, lone, 0.42) is None
     assert refusal(0.50, dict(lone, sighting=1.0), 0.42) is None    # the other vehicle seen where it should be
     assert refusal(0.01, lone, 0.0) is None                        # threshold 0 emits everything
+    # weighed on one pair, but the transform lays two or more onto each other (published pairs)
+    assert refusal(0.50, lone, 0.42, published_pairs=2) is None
+    assert refusal(0.50, lone, 0.42, published_pairs=1) == "too few vehicles"
+    assert refusal(0.50, dict(lone, sighting=-1.0), 0.42, published_pairs=3) == "too few vehicles"
 
 
 def test_the_gated_threshold_holds_the_gross_rate_in_every_family():
     from mmatch.ego.confidence_fit import gated_threshold
 
-    def scene(conf, gross, n_pairs=2.0):
+    def scene(conf, gross, n_pairs=2.0, predicted=None):
         return {"confidence": conf, "evidence": {"n_pairs": n_pairs, "sighting": 0.0},
-                "candidate": {"gross": gross, "success": not gross}}
+                "candidate": {"gross": gross, "success": not gross}, "predicted": predicted}
     wide = [scene(0.9, False)] * 8 + [scene(0.5, True), scene(0.6, False)]
     harsh = [scene(0.8, False)] * 4 + [scene(0.65, True)]
     thr, per = gated_threshold([wide, harsh], 0.0)
@@ -364,6 +372,9 @@ def test_the_gated_threshold_holds_the_gross_rate_in_every_family():
     # a lone unconfirmed pair is refused below the single-pair threshold whatever the threshold
     lone = [scene(0.7, True, n_pairs=1.0)] + [scene(0.6, False)] * 3
     assert gated_threshold([lone], 0.0)[0] == pytest.approx(0.01)
+    # ... unless its transform implies two pairs (the scene's published ones): then the threshold
+    implied = [scene(0.7, True, n_pairs=1.0, predicted=2)] + [scene(0.6, False)] * 3
+    assert gated_threshold([implied], 0.0)[0] == pytest.approx(0.71)
     thr, per = gated_threshold([[scene(0.9, True)]], 0.0)           # only emitting nothing holds
     assert thr == pytest.approx(0.91) and per == [{"emitted": 0.0, "success": 0.0, "gross": 0.0}]
 
