@@ -918,7 +918,8 @@ def evidence(own: SharedFrame, other: SharedFrame, T: np.ndarray, pairs: np.ndar
     return dict(zip(FEATURES, map(float, X[0]))), cov[0], float(amb[0])
 
 
-def refusal(confidence: float, features: dict, thr: float, cfg: ConfidenceConfig = ConfidenceConfig(),
+def refusal(confidence: float, features: dict, thr: float,
+            cfg: ConfidenceConfig = ConfidenceConfig(),
             published_pairs: int | None = None) -> str | None:
     """Why a single frame's estimate of this confidence and evidence is refused at threshold
     `thr`, or None when it is fused: "threshold" (not sure enough), "ambiguous" (the margin
@@ -937,7 +938,8 @@ def refusal(confidence: float, features: dict, thr: float, cfg: ConfidenceConfig
     return None
 
 
-def single_pair_unconfirmed(confidence: float, features: dict, cfg: ConfidenceConfig = ConfidenceConfig(),
+def single_pair_unconfirmed(confidence: float, features: dict,
+                            cfg: ConfidenceConfig = ConfidenceConfig(),
                             published_pairs: int | None = None) -> bool:
     """Whether an estimate of this raw probability rests on at most one vehicle pair that neither
     vehicle's sighting of the other confirms (sighting <= 0), below `cfg.single_pair_threshold`:
@@ -949,7 +951,8 @@ def single_pair_unconfirmed(confidence: float, features: dict, cfg: ConfidenceCo
     those and the estimate does not rest on one pair: of the single frames refused for one
     pair while their transform implied two or more, 32 were right, 5 off and 1 grossly wrong
     on twelve held-out wide hard seeds (2400 scenes; 22 / 1 / 2 on the seven tuning seeds)."""
-    return _one_unconfirmed_pair(features, published_pairs) and confidence < cfg.single_pair_threshold
+    return _one_unconfirmed_pair(features, published_pairs) \
+        and confidence < cfg.single_pair_threshold
 
 
 def _one_unconfirmed_pair(features: dict, published_pairs: int | None = None) -> bool:

@@ -272,18 +272,17 @@ def test_a_vehicle_the_other_should_see_and_does_not_is_counted(cav_y, cav_sees,
 
 
 @pytest.mark.parametrize("n_pairs, sighting, confidence, threshold, published, status", [
-    (1, 0, 0.65, None, 1, "no-estimate"),     # one unconfirmed pair, sure by the model: not sure enough
+    (1, 0, 0.65, None, 1, "no-estimate"),     # one unconfirmed pair, sure by the model: not enough
     (0, -1, 0.70, None, 0, "no-estimate"),
     (1, 1, 0.65, None, 1, "fused"),           # the other vehicle seen where the estimate puts it
     (2, 0, 0.65, None, 2, "fused"),           # two pairs
     (1, 0, 0.80, None, 1, "fused"),           # above the single-pair threshold
     (1, 0, 0.65, 0.0, 1, "fused"),            # threshold 0 emits everything
     (1, 0, 0.65, None, 2, "fused"),           # weighed on one pair, but its transform implies two
-    (1, -1, 0.65, None, 3, "no-estimate"),    # ... where the other vehicle should be seen and is not
+    (1, -1, 0.65, None, 3, "no-estimate"),    # ... where the other vehicle should be seen, is not
 ])
-def test_an_estimate_on_one_unconfirmed_pair_needs_the_single_pair_threshold(monkeypatch, n_pairs, sighting,
-                                                                             confidence, threshold, published,
-                                                                             status):
+def test_an_estimate_on_one_unconfirmed_pair_needs_the_single_pair_threshold(
+        monkeypatch, n_pairs, sighting, confidence, threshold, published, status):
     from mmatch.ego.confidence import Assessment, ConfidenceConfig
     from mmatch.fusion import FusionConfig, Fuser
     from mmatch.label_frames import shared_from_labels
@@ -295,7 +294,8 @@ def test_an_estimate_on_one_unconfirmed_pair_needs_the_single_pair_threshold(mon
         a = Assessment(confidence, np.eye(3) * 0.01, 0.0, "poor fit",
                        dict.fromkeys(FEATURES, 0.0) | {"n_pairs": float(n_pairs), "sighting": float(sighting),
                                                        "margin": 1.0})
-        return aligned.T, a, [(aligned.T, a)], np.zeros((published, 2), np.int32)    # the count matters
+        # the published pairs: their count matters here, not which vehicles they are
+        return aligned.T, a, [(aligned.T, a)], np.zeros((published, 2), np.int32)
 
     monkeypatch.setattr(fuser, "_arbitrate", arbitrate)
     res = fuser.fuse(shared_from_labels(scene.ego, "ego"), shared_from_labels(scene.cav, "cav"))
