@@ -99,15 +99,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {out}")
         return 0
     with tempfile.TemporaryDirectory() as tmp:
+        # the evaluation runs under a neutral model whatever is installed: the installed one would
+        # choose each frame pair's candidate (its chooser) and so which one the polish refines,
+        # and the data would follow it. From a neutral start the fit is reproducible: today's code
+        # refits the packaged model from its folders byte for byte, while the same fit run under
+        # the packaged model landed far from it (gross at coverage 0.8 21 against 12 of 1120 on
+        # the wide tuning seeds; docs/history.md, 2026-12-07, late evening)
         try:
-            current = load_model()              # the model the evaluation runs under (its inflation)
-            model_path = None
-        except ConfigError as exc:
-            # a packaged model whose features are stale (evidence added or renamed): the candidates
-            # and their evidence do not depend on it, so evaluate under a neutral one
+            load_model()
+        except ConfigError as exc:              # stale features (evidence added or renamed)
             print(f"fit-confidence: {exc}; evaluating without it", file=sys.stderr)
-            current, model_path = None, str(Path(tmp) / "neutral.json")
-            Path(model_path).write_text(neutral_model().to_json())
+        current, model_path = None, str(Path(tmp) / "neutral.json")
+        Path(model_path).write_text(neutral_model().to_json())
         priors = [True, False] if args.without_heading else [True]
         results = {heading: _evaluate(args.folders, matchers, model_path, heading, "fit", args.jobs)
                    for heading in priors}

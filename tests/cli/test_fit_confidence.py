@@ -140,6 +140,28 @@ def test_a_stale_packaged_model_does_not_stop_the_fit(folder, tmp_path, stale_pa
     assert stale_package.read_text() != out.read_text()      # --out, not the package, was written
 
 
+def test_the_fit_does_not_depend_on_the_installed_model(folder, tmp_path, monkeypatch):
+    """The evaluation behind a fit runs under a neutral model: what is installed (here the packaged
+    model, then one whose features are stale) does not change the fitted model."""
+    args = ["fit-confidence", str(folder), "--matchers", "consensus", "--no-without-heading",
+            "--no-trees"]
+    under_packaged, under_stale = tmp_path / "packaged.json", tmp_path / "stale.json"
+    confidence.load_model.cache_clear()
+    assert confidence.load_model() is not None
+    assert main([*args, "--out", str(under_packaged)]) == 0
+    good = json.loads(confidence.MODEL_PATH.read_text())
+    for k in ("features", "mean", "scale", "coef"):
+        good[k] = good[k][:-1]
+    (tmp_path / "installed.json").write_text(json.dumps(good))
+    confidence.load_model.cache_clear()
+    monkeypatch.setattr(confidence, "MODEL_PATH", tmp_path / "installed.json")
+    assert main([*args, "--out", str(under_stale)]) == 0
+    confidence.load_model.cache_clear()
+    a, b = (ProbabilityModel.from_json(p.read_text()) for p in (under_packaged, under_stale))
+    np.testing.assert_array_equal(a.coef, b.coef)
+    assert a.threshold == b.threshold and a.inflation == b.inflation
+
+
 def test_threshold_only_keeps_the_model_and_chooses_its_threshold_on_tuning_families(folder, tmp_path, capsys):
     out, kept = _packaged_copy(tmp_path)
     assert main(["fit-confidence", "--threshold-only", "--threshold-on", f"{folder},{folder}",
