@@ -131,7 +131,7 @@ def gated_threshold(families: list[list[dict]], max_gross: float, cfg: Confidenc
     def outcome(thr: float) -> list[dict]:
         out = []
         for fam, n in zip(rows, sizes):
-            kept = [(g, ok) for c, ev, g, ok, n in fam if refusal(c, ev, thr, cfg, n) is None]
+            kept = [(g, ok) for c, ev, g, ok, pub in fam if refusal(c, ev, thr, cfg, pub) is None]
             gross = sum(g for g, _ in kept)
             out.append(dict(emitted=len(kept) / n, success=sum(ok for _, ok in kept) / n,
                             gross=gross / len(kept) if kept else 0.0))
