@@ -109,19 +109,17 @@ def run(args: argparse.Namespace) -> int:
             load_model()
         except ConfigError as exc:              # stale features (evidence added or renamed)
             print(f"fit-confidence: {exc}; evaluating without it", file=sys.stderr)
-        current, model_path = None, str(Path(tmp) / "neutral.json")
+        model_path = str(Path(tmp) / "neutral.json")     # no inflation: fit_model's default 1
         Path(model_path).write_text(neutral_model().to_json())
         priors = [True, False] if args.without_heading else [True]
         results = {heading: _evaluate(args.folders, matchers, model_path, heading, "fit", args.jobs)
                    for heading in priors}
     meta = {"folders": args.folders, "matchers": matchers}
     try:
-        model = fit_model(results[True], args.max_gross, args.min_coverage, meta=meta,
-                          inflation_used=current.inflation if current is not None else 1.0)
+        model = fit_model(results[True], args.max_gross, args.min_coverage, meta=meta)
         if args.without_heading:
-            used = current.for_heading(False).inflation if current is not None else 1.0
-            sub = fit_model(results[False], args.max_gross, args.min_coverage, meta=dict(meta, heading_prior=False),
-                            inflation_used=used)
+            sub = fit_model(results[False], args.max_gross, args.min_coverage,
+                            meta=dict(meta, heading_prior=False))
             model = replace(model, without_heading=sub)
         if args.trees:
             reuse = results[True] if matchers == [DEFAULT_MATCHER] else None
