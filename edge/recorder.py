@@ -94,7 +94,8 @@ class Recorder:
 
     def __init__(self, cfg: LogSection, *, prefix: str = "mmatch", config_text: str = "",
                  free_bytes: Callable[[Path], int] | None = None,
-                 clock_ns: Callable[[], int] = time.time_ns, queue_size: int = 10000) -> None:
+                 clock_ns: Callable[[], int] = time.time_ns, queue_size: int = 10000,
+                 monotonic: Callable[[], float] = time.monotonic) -> None:
         if not cfg.dir:
             raise DeviceError("recorder: log.dir is empty")
         self.cfg = cfg
@@ -103,6 +104,7 @@ class Recorder:
         self.config_text = config_text
         self._free_bytes = free_bytes or (lambda p: shutil.disk_usage(p).free)
         self._clock_ns = clock_ns
+        self._monotonic = monotonic            # s: rotation age, disk checks, fault back-off
         self._lock = threading.Lock()          # front: log times, floors, queue order
         self._queue: queue.Queue = queue.Queue(queue_size)
         self._thread: threading.Thread | None = None
@@ -213,7 +215,7 @@ class Recorder:
 
     # ------------------------------------------------------------------ disk faults
     def _retry_due(self) -> bool:
-        return time.monotonic() >= self._retry_at
+        return self._monotonic() >= self._retry_at
 
     def _lost(self, n: int = 1) -> None:
         with self._lock:
@@ -228,7 +230,7 @@ class Recorder:
             self._lost(self._file_messages - self._durable)
             self._file_messages = self._durable
         self._abandon_file()
-        now = time.monotonic()
+        now = self._monotonic()
         self._backoff = min(max(2 * self._backoff, 1.0), self.cfg.retry_s)
         self._retry_at = now + self._backoff
         first = not self.failing
@@ -271,7 +273,7 @@ class Recorder:
 
     def _flush_if_due(self) -> None:
         """Close the open chunk at least every flush_s: a crash loses at most that much."""
-        now = time.monotonic()
+        now = self._monotonic()
         if self._writer is not None and now - self._last_flush >= self.cfg.flush_s:
             self._writer.flush()
             self._last_flush = now
@@ -315,7 +317,7 @@ class Recorder:
             self._writer.add_metadata(name, meta)
         self._channels.clear()
         self._schemas.clear()
-        self._opened_at = time.monotonic()
+        self._opened_at = self._monotonic()
         self._last_flush = self._opened_at
         self.files.append(path)
         log.info("recording to %s", path)
@@ -347,7 +349,7 @@ class Recorder:
 
     def _maybe_rotate(self) -> None:
         assert self._file is not None
-        age = time.monotonic() - self._opened_at
+        age = self._monotonic() - self._opened_at
         if self._file.tell() >= self.cfg.rotate_mb * MB or age >= self.cfg.rotate_s:
             self._finish_file()
             self._start_file()
@@ -376,7 +378,7 @@ class Recorder:
                 self._queue.put(("meta", name, dict(meta)))
 
     def _check_disk(self, force: bool = False) -> None:
-        now = time.monotonic()
+        now = self._monotonic()
         if not force and now - self._last_disk_check < 1.0:
             return
         self._last_disk_check = now
@@ -423,7 +425,7 @@ class Recorder:
             if self.raw_stopped and logschema.is_raw(topic):
                 self.dropped["raw_disk_floor"] += 1
                 return False
-            if self.failing and time.monotonic() < self._retry_at:  # backing off: not even queued
+            if self.failing and self._monotonic() < self._retry_at:  # backing off: not even queued
                 self.dropped["disk_error"] += 1
                 self._not_recorded_since_log += 1
                 return False

@@ -71,11 +71,18 @@ def test_rotation_by_size_and_time(tmp_path):
     assert len(rec.files) >= 3
     total = sum(1 for _ in logreader.read_messages(tmp_path / "logs"))
     assert total == 40
-    with Recorder(_cfg(tmp_path / "b", rotate_s=0.05)) as rec2:
+    clock = {"s": 100.0}  # the rotation's clock, so a slow writer thread cannot age the file
+    with Recorder(_cfg(tmp_path / "b", rotate_s=0.05), monotonic=lambda: clock["s"]) as rec2:
         rec2.write(logschema.FUSED, {"a": 1})
-        time.sleep(0.12)
+        assert _wait(lambda: rec2.written == 1)
+        clock["s"] += 0.04
         rec2.write(logschema.FUSED, {"a": 2})
+        assert _wait(lambda: rec2.written == 2)
+        assert len(rec2.files) == 1  # younger than rotate_s: no rotation
+        clock["s"] += 0.02
+        rec2.write(logschema.FUSED, {"a": 3})
     assert len(rec2.files) == 2
+    assert [m.data for m in logreader.read_messages(rec2.files[1])] == [b'{"a":3}']
 
 
 def test_disk_floor_stops_raw_first_then_everything(tmp_path):
