@@ -11,9 +11,9 @@ and evaluates them again, with the pipeline and with perfect separation (`--cav 
   is a bug: the first of these found RM-net reading box heights as if every camera had a
   1000 px focal length.
 - shifts beyond the physics family, whose cost is measured: detection scores x 0.6, monocular
-  depth x 0.85 and x 1.15, SNR +10 dB and -6 dB, no elevation (z = 0), half the returns,
-  appearance descriptors that say less (half of each histogram replaced by a random one) or
-  one camera's hues off the other's by a histogram bin.
+  depth x 0.85 and x 1.15, SNR +10 dB and -6 dB, no elevation (z = 0), half the returns, half
+  or twice the stationary world's returns, appearance descriptors that say less (half of each
+  histogram replaced by a random one) or one camera's hues off the other's by a histogram bin.
 
 Each check is seeded per scene from the file name, so a run is repeatable.
 """
@@ -30,6 +30,7 @@ import numpy as np
 
 from mmatch.cav.depth_scale import box_bearings
 from mmatch.cav.doppler_sign import judge_sign, sign_vote, with_sign
+from mmatch.cav.egomotion import fit_egomotion
 from mmatch.errors import ConfigError, MMatchError
 from mmatch.evaluate import EvalConfig, depth_calibrations, evaluate_with, report, scene_depth_evidence
 from mmatch.scene_io import load_scene
@@ -88,6 +89,33 @@ def _more_points(times: int) -> Callable[[View, np.random.Generator], View]:
             copies.append(copy)
         labels = None if view.point_labels is None else np.tile(view.point_labels, times)
         return replace(view, points=np.concatenate(copies).astype(np.float32), point_labels=labels)
+    return apply
+
+
+def _stationary(view: View) -> np.ndarray:
+    """bool (N,) the view's returns from the stationary world: its labelled background (label -1)
+    when the file has labels, else what its own ego-motion fit does not call moving."""
+    if view.point_labels is not None:
+        return np.asarray(view.point_labels) == -1
+    return ~fit_egomotion(np.asarray(view.points, np.float32)).moving
+
+
+def _background_share(share: float) -> Callable[[View, np.random.Generator], View]:
+    """The stationary world's returns (`_stationary`) thinned to `share` at random (< 1), or each
+    repeated once more 5 cm away (2): surroundings or a CFAR setting that give another density of
+    background returns; the vehicles' returns as they are. Our physics draws no such constant:
+    a view's stationary returns vary with its surroundings only (37-189 a view, 5th to 95th
+    percentile of wide hard seed 1)."""
+    def apply(view: View, rng: np.random.Generator) -> View:
+        still = _stationary(view)
+        if share < 1:
+            return _keep_points(view, np.flatnonzero(~still | (rng.random(len(still)) < share)))
+        p = np.array(view.points, np.float32)
+        extra = p[still].copy()
+        extra[:, :2] += (0.05 * rng.standard_normal((len(extra), 2))).astype(np.float32)
+        labels = None if view.point_labels is None else np.concatenate([view.point_labels,
+                                                                        view.point_labels[still]])
+        return replace(view, points=np.concatenate([p, extra]), point_labels=labels)
     return apply
 
 
@@ -214,6 +242,10 @@ CHECKS: dict[str, Check] = {c.name: c for c in (
           _more_points(2)),
     Check("8x-points", "shift", "every radar return 8 times, the copies as double-points' (a much denser radar)",
           _more_points(8)),
+    Check("half-background", "shift", "each stationary-world return kept with probability 0.5 "
+          "(sparser surroundings, another CFAR); the vehicles' as they are", _background_share(0.5)),
+    Check("double-background", "shift", "each stationary-world return twice, the copy 5 cm away "
+          "(denser surroundings)", _background_share(2.0)),
     Check("azimuth+1.5deg", "shift", "1.5 deg more azimuth noise on every return (an array beyond the family)",
           _azimuth_noise(1.5)),
     Check("descriptor-noise", "shift", "half of each descriptor histogram replaced by a random one (less appearance)",

@@ -91,6 +91,36 @@ def test_each_check_rewrites_both_views_as_described(hard_dir):
         np.testing.assert_array_equal(getattr(s.ego, k), v)
 
 
+def test_the_background_checks_change_the_stationary_world_only(hard_dir):
+    """half-background and double-background thin or repeat the labelled stationary returns (label
+    -1) and leave every vehicle's, clutter's and ghost's; a file without labels has its stationary
+    returns found by its own ego-motion fit."""
+    from dataclasses import replace
+
+    from mmatch.cav.egomotion import fit_egomotion
+    s = load_scene(sorted(hard_dir.glob("*.npz"))[0])
+    for view, orig in ((perturb(s, CHECKS["half-background"]).ego, s.ego),
+                       (perturb(s, CHECKS["half-background"]).cav, s.cav)):
+        still = orig.point_labels == -1
+        assert 0.3 < (view.point_labels == -1).sum() / still.sum() < 0.7
+        np.testing.assert_array_equal(view.points[view.point_labels != -1], orig.points[~still])
+        assert set(map(tuple, view.points)) <= set(map(tuple, orig.points))
+    dense = perturb(s, CHECKS["double-background"]).cav
+    still = s.cav.point_labels == -1
+    n = len(s.cav.points)
+    assert len(dense.points) == n + still.sum() and np.array_equal(dense.points[:n], s.cav.points)
+    np.testing.assert_array_equal(dense.point_labels[n:], -1)
+    gap = np.linalg.norm(dense.points[n:, :2] - s.cav.points[still, :2], axis=1)
+    assert 0.02 < np.median(gap) < 0.15
+    np.testing.assert_array_equal(dense.points[n:, 2:], s.cav.points[still, 2:])
+    unlabelled = replace(s, ego=replace(s.ego, point_labels=None), cav=replace(s.cav, point_labels=None))
+    thin = perturb(unlabelled, CHECKS["half-background"]).ego
+    kept = {tuple(p) for p in thin.points}
+    moving = fit_egomotion(s.ego.points).moving
+    assert moving.sum() >= 5 and all(tuple(p) in kept for p in s.ego.points[moving])
+    assert 0.3 < np.mean([tuple(p) in kept for p in s.ego.points[~moving]]) < 0.7
+
+
 def test_each_frame_votes_for_the_doppler_sign_its_radar_motion_explains(hard_dir):
     """cav/doppler_sign.py: a moving radar's frame fits DESIGN.md's sign, the same frame negated
     the other one; a folder flips only when nearly all of at least MIN_FRAMES votes say so."""
