@@ -94,7 +94,8 @@ def _more_points(times: int) -> Callable[[View, np.random.Generator], View]:
 
 def _stationary(view: View) -> np.ndarray:
     """bool (N,) the view's returns from the stationary world: its labelled background (label -1)
-    when the file has labels, else what its own ego-motion fit does not call moving."""
+    when the file has labels, else what its own ego-motion fit does not call moving (every
+    return of a frame the fit finds no velocity in)."""
     if view.point_labels is not None:
         return np.asarray(view.point_labels) == -1
     return ~fit_egomotion(np.asarray(view.points, np.float32)).moving
