@@ -101,23 +101,27 @@ def _stationary(view: View) -> np.ndarray:
     return ~fit_egomotion(np.asarray(view.points, np.float32)).moving
 
 
-def _background_share(share: float) -> Callable[[View, np.random.Generator], View]:
-    """The stationary world's returns (`_stationary`) thinned to `share` at random (< 1), or each
-    repeated once more 5 cm away (2): surroundings or a CFAR setting that give another density of
-    background returns; the vehicles' returns as they are. Our physics draws no such constant:
-    a view's stationary returns vary with its surroundings only (37-189 a view, 5th to 95th
-    percentile of wide hard seed 1)."""
+def _background_kept(share: float) -> Callable[[View, np.random.Generator], View]:
+    """Each of the stationary world's returns (`_stationary`) kept with probability `share`, the
+    vehicles' as they are: surroundings or a CFAR setting that give fewer background returns.
+    Our physics draws no such constant: a view's stationary returns vary with its surroundings
+    only (37-189 a view, 5th to 95th percentile of wide hard seed 1)."""
     def apply(view: View, rng: np.random.Generator) -> View:
         still = _stationary(view)
-        if share < 1:
-            return _keep_points(view, np.flatnonzero(~still | (rng.random(len(still)) < share)))
-        p = np.array(view.points, np.float32)
-        extra = p[still].copy()
-        extra[:, :2] += (0.05 * rng.standard_normal((len(extra), 2))).astype(np.float32)
-        labels = None if view.point_labels is None else np.concatenate([view.point_labels,
-                                                                        view.point_labels[still]])
-        return replace(view, points=np.concatenate([p, extra]), point_labels=labels)
+        return _keep_points(view, np.flatnonzero(~still | (rng.random(len(still)) < share)))
     return apply
+
+
+def _background_doubled(view: View, rng: np.random.Generator) -> View:
+    """Each of the stationary world's returns (`_stationary`) once more, 5 cm away (denser
+    surroundings), the vehicles' as they are."""
+    still = _stationary(view)
+    p = np.array(view.points, np.float32)
+    extra = p[still].copy()
+    extra[:, :2] += (0.05 * rng.standard_normal((len(extra), 2))).astype(np.float32)
+    labels = None if view.point_labels is None else \
+        np.concatenate([view.point_labels, view.point_labels[still]])
+    return replace(view, points=np.concatenate([p, extra]), point_labels=labels)
 
 
 HUE_BINS = DESCRIPTOR_GROUPS[0][1]     # the hue histogram: the first entries (DESIGN.md)
@@ -244,9 +248,9 @@ CHECKS: dict[str, Check] = {c.name: c for c in (
     Check("8x-points", "shift", "every radar return 8 times, the copies as double-points' (a much denser radar)",
           _more_points(8)),
     Check("half-background", "shift", "each stationary-world return kept with probability 0.5 "
-          "(sparser surroundings, another CFAR); the vehicles' as they are", _background_share(0.5)),
+          "(sparser surroundings, another CFAR); the vehicles' as they are", _background_kept(0.5)),
     Check("double-background", "shift", "each stationary-world return twice, the copy 5 cm away "
-          "(denser surroundings)", _background_share(2.0)),
+          "(denser surroundings)", _background_doubled),
     Check("azimuth+1.5deg", "shift", "1.5 deg more azimuth noise on every return (an array beyond the family)",
           _azimuth_noise(1.5)),
     Check("descriptor-noise", "shift", "half of each descriptor histogram replaced by a random one (less appearance)",

@@ -99,8 +99,8 @@ def test_the_background_checks_change_the_stationary_world_only(hard_dir):
 
     from mmatch.cav.egomotion import fit_egomotion
     s = load_scene(sorted(hard_dir.glob("*.npz"))[0])
-    for view, orig in ((perturb(s, CHECKS["half-background"]).ego, s.ego),
-                       (perturb(s, CHECKS["half-background"]).cav, s.cav)):
+    half = perturb(s, CHECKS["half-background"])
+    for view, orig in ((half.ego, s.ego), (half.cav, s.cav)):
         still = orig.point_labels == -1
         assert 0.3 < (view.point_labels == -1).sum() / still.sum() < 0.7
         np.testing.assert_array_equal(view.points[view.point_labels != -1], orig.points[~still])
