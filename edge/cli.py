@@ -34,6 +34,7 @@ COMMANDS: dict[str, str] = {
     "train": "mmatch.edge.commands.train",
     "ablation": "mmatch.edge.commands.ablation",
     "transfer": "mmatch.edge.commands.transfer",
+    "compare": "mmatch.edge.commands.compare",
 }
 
 
