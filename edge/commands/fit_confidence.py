@@ -26,6 +26,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-without-heading", dest="without_heading", action="store_false",
                    help="skip the second model, for frame pairs without a heading prior (a radar standing "
                         "still or turning), fit on the same folders run without it")
+    p.add_argument("--without-heading-folders", default=None, metavar="FOLDER[,FOLDER...]",
+                   help="fit the second model on these folders instead (default: the same folders); e.g. "
+                        "without oblique junctions, which without the velocities' prior no evidence tells "
+                        "from a crossing at right angles (the road axes hold modulo 90 deg)")
     p.add_argument("--no-trees", dest="trees", action="store_false",
                    help="no boosted trees beside the regression (the confidence is the regression's probability)")
     p.add_argument("--trees-only", action="store_true",
@@ -65,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         if m not in MATCHERS:
             raise ParseError(f"--matchers: unknown matcher {m!r}; choose from {', '.join(sorted(MATCHERS))}")
     families = [[f for f in fam.split(",") if f] for fam in args.threshold_on]
-    for folder in [*args.folders, *(f for fam in families for f in fam)]:
+    for folder in [*args.folders, *(f for fam in families for f in fam), *_second_folders(args)]:
         if not Path(folder).is_dir() or not any(Path(folder).glob("*.npz")):
             raise ParseError(f"{folder}: not a folder of *.npz scene files")
     if args.trees_only and not args.trees:
@@ -112,14 +116,15 @@ def run(args: argparse.Namespace) -> int:
         model_path = str(Path(tmp) / "neutral.json")     # no inflation: fit_model's default 1
         Path(model_path).write_text(neutral_model().to_json())
         priors = [True, False] if args.without_heading else [True]
-        results = {heading: _evaluate(args.folders, matchers, model_path, heading, "fit", args.jobs)
+        results = {heading: _evaluate(args.folders if heading else _second_folders(args), matchers,
+                                      model_path, heading, "fit", args.jobs)
                    for heading in priors}
     meta = {"folders": args.folders, "matchers": matchers}
     try:
         model = fit_model(results[True], args.max_gross, args.min_coverage, meta=meta)
         if args.without_heading:
             sub = fit_model(results[False], args.max_gross, args.min_coverage,
-                            meta=dict(meta, heading_prior=False))
+                            meta=dict(meta, folders=_second_folders(args), heading_prior=False))
             model = replace(model, without_heading=sub)
         if args.trees:
             reuse = results[True] if matchers == [DEFAULT_MATCHER] else None
@@ -149,8 +154,9 @@ def _with_trees(model, reuse: list[dict] | None, args: argparse.Namespace):
         first = reuse if reuse is not None else _runs(model, args.folders, True, "fit trees", args.jobs)
         out = fit_tree_stage(first, model, meta)
         if args.without_heading and model.without_heading is not None:
-            second = _runs(model, args.folders, False, "fit trees", args.jobs)
-            sub = fit_tree_stage(second, model.without_heading, dict(meta, heading_prior=False))
+            second = _runs(model, _second_folders(args), False, "fit trees", args.jobs)
+            sub = fit_tree_stage(second, model.without_heading,
+                                 dict(meta, folders=_second_folders(args), heading_prior=False))
             out = replace(out, without_heading=sub)
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
@@ -180,7 +186,8 @@ def _with_inflation(model, args: argparse.Namespace):
     from mmatch.ego.confidence_fit import fit_inflation
 
     def refit(sub, heading: bool):
-        runs = _runs(model, args.folders, heading, "inflation", args.jobs)
+        folders = args.folders if heading else _second_folders(args)
+        runs = _runs(model, folders, heading, "inflation", args.jobs)
         published = [dict(r["candidate"], covariance=r["covariance"]) for r in runs
                      if r.get("candidate") and r.get("covariance") is not None]
         factor = fit_inflation(published)
@@ -188,7 +195,7 @@ def _with_inflation(model, args: argparse.Namespace):
         print(f"covariance inflation{'' if heading else ' without a heading prior'} {sub.inflation:.3f} -> "
               f"{inflation:.3f} (x {factor:.3f}) on {sum(p['success'] for p in published)} successful "
               f"estimates of {len(runs)} scenes")
-        choice = f"{inflation:.3f}: refit alone (--inflation-only) on " + ",".join(args.folders)
+        choice = f"{inflation:.3f}: refit alone (--inflation-only) on " + ",".join(folders)
         return replace(sub, inflation=inflation, meta=dict(sub.meta, inflation_choice=choice))
 
     out = refit(model, True)
@@ -213,7 +220,8 @@ def _with_calibration(model, args: argparse.Namespace):
                    without_heading=replace(sub0, calibration=None) if sub0 is not None else None)
 
     def refit(sub, heading: bool):
-        runs = _runs(bare, args.folders, heading, "calibration", args.jobs)
+        folders = args.folders if heading else _second_folders(args)
+        runs = _runs(bare, folders, heading, "calibration", args.jobs)
         rows = [(r["confidence"], r["candidate"]["success"]) for r in runs
                 if r.get("candidate") and r.get("confidence") is not None]
         p, y = np.array([c for c, _ in rows], float), np.array([s for _, s in rows], bool)
@@ -227,13 +235,19 @@ def _with_calibration(model, args: argparse.Namespace):
               f"{len(p)} chosen estimates ({y.mean():.3f} right, mean raw probability {p.mean():.3f}); expected "
               f"calibration error {before['ece']:.3f} -> {after['ece']:.3f}, Brier {before['brier']:.4f} -> "
               f"{after['brier']:.4f}; threshold {sub.threshold:.3f} publishes as {fitted.published(sub.threshold):.3f}")
-        choice = f"a {cal[0]:.4f}, b {cal[1]:.4f}: fit on the chosen estimates of " + ",".join(args.folders)
+        choice = f"a {cal[0]:.4f}, b {cal[1]:.4f}: fit on the chosen estimates of " + ",".join(folders)
         return replace(fitted, meta=dict(sub.meta, calibration_choice=choice))
 
     out = refit(model, True)
     if args.without_heading and sub0 is not None:
         out = replace(out, without_heading=refit(sub0, False))
     return out
+
+
+def _second_folders(args: argparse.Namespace) -> list[str]:
+    """The folders the second model (frame pairs without a heading prior) is fit on."""
+    given = getattr(args, "without_heading_folders", None)
+    return [f for f in given.split(",") if f] if given else list(args.folders)
 
 
 def _runs(model, folders: list[str], heading: bool, label: str, jobs: int) -> list[dict]:

@@ -63,6 +63,25 @@ def test_fits_a_model_of_todays_evidence(folder, tmp_path, capsys):
         (x - model.mean) / model.scale)))
 
 
+def test_second_model_fits_on_its_own_folders(folder, tmp_path_factory, tmp_path):
+    """--without-heading-folders: the model for frame pairs without a heading prior learns from
+    other folders than the first (all of its stages: regression, calibration), and a folder that
+    is not one is refused before any fitting."""
+    other = tmp_path_factory.mktemp("fit_second")
+    generate(other, 16, seed=32, mode="hard", jobs=1, physics="wide")
+    out = tmp_path / "model.json"
+    assert main(["fit-confidence", str(folder), "--without-heading-folders", str(other), "--matchers",
+                 "consensus", "--no-trees", "--out", str(out)]) == 0
+    model = ProbabilityModel.from_json(out.read_text())
+    assert model.meta["scenes"] == 16 and model.meta["folders"] == [str(folder)]
+    sub = model.without_heading
+    assert sub.meta["scenes"] == 16 and sub.meta["folders"] == [str(other)] and sub.meta["heading_prior"] is False
+    assert sub.meta["calibration_choice"].endswith(f"chosen estimates of {other}")
+    assert model.meta["calibration_choice"].endswith(f"chosen estimates of {folder}")
+    assert main(["fit-confidence", str(folder), "--without-heading-folders", str(tmp_path / "missing"),
+                 "--out", str(out)]) == 2
+
+
 def _packaged_copy(tmp_path: Path) -> tuple[Path, ProbabilityModel]:
     """A copy of the packaged model file for a `--*-only` refit to rewrite, and what it holds."""
     out = tmp_path / "model.json"
