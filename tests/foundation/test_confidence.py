@@ -160,8 +160,8 @@ def test_published_confidence_is_a_monotone_map_of_the_models_probability():
 
 
 @pytest.mark.parametrize("raw, configured, status", [
-    (0.38, None, "fused"),          # the fitted threshold (0.35) reads the raw probability
-    (0.33, None, "no-estimate"),
+    (0.03, None, "fused"),          # the fitted threshold reads the raw probability (raw: above it)
+    (-0.02, None, "no-estimate"),   # ... and below it
     (0.45, "above", "no-estimate"),  # a configured threshold is in published units
     (0.55, "above", "fused"),
 ])
@@ -173,6 +173,8 @@ def test_a_frame_is_published_with_the_calibrated_confidence_and_gated_as_before
     from mmatch.fusion import FusionConfig, Fuser
     from mmatch.label_frames import shared_from_labels
     model = _calibrated()
+    if not configured:
+        raw = model.threshold + raw
     path = tmp_path / "calibrated.json"
     path.write_text(model.to_json())
     thr = float(model.published(0.5)) if configured else None        # published 0.5 of the raw model
