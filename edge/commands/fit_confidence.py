@@ -48,12 +48,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration-only", action="store_true",
                    help="keep the model file as it is and refit only the map from its probability to the "
                         "published confidence (the default matcher's chosen estimates on the folders; the "
-                        "second model's on the same folders run without the heading prior, unless "
-                        "--no-without-heading)")
+                        "second model's on its folders, --without-heading-folders, run without the heading "
+                        "prior, unless --no-without-heading)")
     p.add_argument("--inflation-only", action="store_true",
                    help="keep the model file as it is and refit only its covariance inflations on the folders "
-                        "(the default matcher's published estimates; the second model's on the same folders "
-                        "run without the heading prior, unless --no-without-heading)")
+                        "(the default matcher's published estimates; the second model's on its folders, "
+                        "--without-heading-folders, run without the heading prior, unless --no-without-heading)")
 
 
 def run(args: argparse.Namespace) -> int:
