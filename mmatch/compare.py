@@ -72,9 +72,9 @@ def _key(row: dict) -> str:
     return "/".join(Path(f).parts[-2:]) if f else str(row["scene"])
 
 
-def _summary(rows: list[dict]) -> dict:
+def _summary(rows: list[dict], kinds: list[str]) -> dict:
+    """One run's figures over its rows, whose outcomes (`outcome`) are `kinds`."""
     n = len(rows)
-    kinds = [outcome(r) for r in rows]
     emitted = n - kinds.count("refused")
     tp = sum(int(r.get("tp", 0)) for r in rows)
     pred = sum(int(r.get("predicted", 0)) for r in rows)
@@ -105,7 +105,7 @@ def compare(a: dict[str, dict], b: dict[str, dict]) -> dict:
         if x != y:
             moves[f"{x}->{y}"] = moves.get(f"{x}->{y}", 0) + 1
     return {"scenes": len(common), "only_a": len(set(a) - set(b)), "only_b": len(set(b) - set(a)),
-            "a": _summary([a[s] for s in common]), "b": _summary([b[s] for s in common]),
+            "a": _summary([a[s] for s in common], ka), "b": _summary([b[s] for s in common], kb),
             "moves": dict(sorted(moves.items(), key=lambda kv: (-kv[1], kv[0]))),
             "right": _paired(ka, kb, "right"), "gross": _paired(ka, kb, "gross")}
 

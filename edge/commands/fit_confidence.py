@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         if m not in MATCHERS:
             raise ParseError(f"--matchers: unknown matcher {m!r}; choose from {', '.join(sorted(MATCHERS))}")
     families = [[f for f in fam.split(",") if f] for fam in args.threshold_on]
-    for folder in [*args.folders, *(f for fam in families for f in fam), *_second_folders(args)]:
+    for folder in [*args.folders, *(f for fam in families for f in fam), *_folders(args, False)]:
         if not Path(folder).is_dir() or not any(Path(folder).glob("*.npz")):
             raise ParseError(f"{folder}: not a folder of *.npz scene files")
     if args.trees_only and not args.trees:
@@ -116,15 +116,14 @@ def run(args: argparse.Namespace) -> int:
         model_path = str(Path(tmp) / "neutral.json")     # no inflation: fit_model's default 1
         Path(model_path).write_text(neutral_model().to_json())
         priors = [True, False] if args.without_heading else [True]
-        results = {heading: _evaluate(args.folders if heading else _second_folders(args), matchers,
-                                      model_path, heading, "fit", args.jobs)
+        results = {heading: _evaluate(_folders(args, heading), matchers, model_path, heading, "fit", args.jobs)
                    for heading in priors}
     meta = {"folders": args.folders, "matchers": matchers}
     try:
         model = fit_model(results[True], args.max_gross, args.min_coverage, meta=meta)
         if args.without_heading:
             sub = fit_model(results[False], args.max_gross, args.min_coverage,
-                            meta=dict(meta, folders=_second_folders(args), heading_prior=False))
+                            meta=dict(meta, folders=_folders(args, False), heading_prior=False))
             model = replace(model, without_heading=sub)
         if args.trees:
             reuse = results[True] if matchers == [DEFAULT_MATCHER] else None
@@ -154,9 +153,9 @@ def _with_trees(model, reuse: list[dict] | None, args: argparse.Namespace):
         first = reuse if reuse is not None else _runs(model, args.folders, True, "fit trees", args.jobs)
         out = fit_tree_stage(first, model, meta)
         if args.without_heading and model.without_heading is not None:
-            second = _runs(model, _second_folders(args), False, "fit trees", args.jobs)
+            second = _runs(model, _folders(args, False), False, "fit trees", args.jobs)
             sub = fit_tree_stage(second, model.without_heading,
-                                 dict(meta, folders=_second_folders(args), heading_prior=False))
+                                 dict(meta, folders=_folders(args, False), heading_prior=False))
             out = replace(out, without_heading=sub)
     except ValueError as exc:
         raise ParseError(str(exc)) from exc
@@ -186,7 +185,7 @@ def _with_inflation(model, args: argparse.Namespace):
     from mmatch.ego.confidence_fit import fit_inflation
 
     def refit(sub, heading: bool):
-        folders = args.folders if heading else _second_folders(args)
+        folders = _folders(args, heading)
         runs = _runs(model, folders, heading, "inflation", args.jobs)
         published = [dict(r["candidate"], covariance=r["covariance"]) for r in runs
                      if r.get("candidate") and r.get("covariance") is not None]
@@ -220,7 +219,7 @@ def _with_calibration(model, args: argparse.Namespace):
                    without_heading=replace(sub0, calibration=None) if sub0 is not None else None)
 
     def refit(sub, heading: bool):
-        folders = args.folders if heading else _second_folders(args)
+        folders = _folders(args, heading)
         runs = _runs(bare, folders, heading, "calibration", args.jobs)
         rows = [(r["confidence"], r["candidate"]["success"]) for r in runs
                 if r.get("candidate") and r.get("confidence") is not None]
@@ -244,10 +243,12 @@ def _with_calibration(model, args: argparse.Namespace):
     return out
 
 
-def _second_folders(args: argparse.Namespace) -> list[str]:
-    """The folders the second model (frame pairs without a heading prior) is fit on."""
-    given = getattr(args, "without_heading_folders", None)
-    return [f for f in given.split(",") if f] if given else list(args.folders)
+def _folders(args: argparse.Namespace, heading: bool) -> list[str]:
+    """The folders a model is fit on: the first model's (heading prior known), or the second's,
+    for frame pairs without one (--without-heading-folders; by default the same)."""
+    if heading or not args.without_heading_folders:
+        return list(args.folders)
+    return [f for f in args.without_heading_folders.split(",") if f]
 
 
 def _runs(model, folders: list[str], heading: bool, label: str, jobs: int) -> list[dict]:
