@@ -161,8 +161,8 @@ class EgoSection:
     confidence_threshold: float = _opt(-1.0, lo=-1.0, hi=1.0,
                                        doc="an estimate less sure than this (its published confidence: P within "
                                            "2 m / 5 deg) is published as 'no estimate'; -1: the defaults, chosen "
-                                           "on the wide physics family with a harsher one in view (0.79 a single "
-                                           "frame, the model's 0.42 as published; 0.6 a tracked "
+                                           "on the wide physics family with a harsher one in view (0.63 a single "
+                                           "frame, 0.55 without a heading prior; 0.6 a tracked "
                                            "transform, the pose filter's belief times its "
                                            "spread's mass within 2 m / 5 deg)")
     max_links: int = _opt(8, lo=1, hi=256,
