@@ -12,8 +12,8 @@ import numpy as np
 from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres,
                              velocity_heading_yaws, without_heading_prior)
 from mmatch.ego.confidence import (Assessment, ConfidenceConfig, PairContext, assess_many, published_confidence,
-                                   refusal, shared_view, single_pair_unconfirmed, tells_poses_apart,
-                                   threshold, vehicle_distances, with_information)
+                                   refusal, refused_probability, shared_view, single_pair_unconfirmed,
+                                   tells_poses_apart, threshold, vehicle_distances, with_information)
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import near_transforms, rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
@@ -215,12 +215,13 @@ class Fuser:
             return self._tracked(own, other, pred, own_objs, cands, match, timings,
                                  predicted is None, a.reason, (T, a), heading)
         ccfg = self.config.confidence
-        # published with the model's calibration; the gates read the raw probability (the same
-        # decisions, ego/confidence.py `ProbabilityModel.published`)
-        sure = dict(confidence=published_confidence(a.confidence, ccfg, heading), covariance=a.covariance,
-                    ambiguity=a.ambiguity, evidence=a.features, candidates=cands)
         thr = self._threshold if heading else self._threshold_no_heading
         why = refusal(a.confidence, a.features, thr, ccfg, len(match.pairs))
+        # published with the model's calibration; the gates read the raw probability (the same
+        # decisions, ego/confidence.py `ProbabilityModel.published`); a frame another gate
+        # refused publishes below the threshold (`refused_probability`)
+        sure = dict(confidence=published_confidence(refused_probability(a.confidence, why, thr, ccfg), ccfg, heading),
+                    covariance=a.covariance, ambiguity=a.ambiguity, evidence=a.features, candidates=cands)
         if why is not None:
             # not sure enough, the matcher's own evidence prefers a distinct alternative (two
             # judges disagree: ambiguous), or one unconfirmed pair carries it; the vehicles both
@@ -302,6 +303,9 @@ class Fuser:
         if confidence < thr or young:
             reason = "unconfirmed" if young and confidence >= thr else \
                 ("contested" if contested else (reason or "track not sure"))
+            if reason == "unconfirmed":     # below the threshold, as a single frame's other gates publish
+                sure["confidence"] = float(min(confidence * thr / max(tcfg.sure_at_once or 1.0, thr),
+                                               np.nextafter(thr, 0.0)))
             return FusionResult("no-estimate", reason, objects=own_objs, timings=timings,
                                 refused_T=T, **sure)
         return FusionResult("fused", "" if hit else "tracked", T, pairs, merge_objects(own, other, T, pairs),

@@ -938,6 +938,22 @@ def refusal(confidence: float, features: dict, thr: float,
     return None
 
 
+def refused_probability(p: float, why: str | None, thr: float, cfg: ConfidenceConfig = ConfidenceConfig()) -> float:
+    """The raw probability a single frame's estimate of raw probability p is published from, once
+    `refusal` at threshold thr has said why (None: fused): p itself, unless a gate other than the
+    threshold refused it. Then p times thr over the level that gate asks (single_pair_threshold
+    for one unconfirmed pair, 1 for the margin gate), kept below thr: a published confidence at
+    or above the published threshold always means fused (the vehicle service's config says so),
+    and the refused keep their order among themselves. The probabilities of estimates resting on
+    one unconfirmed pair run high where that gate refuses them: on twelve held-out wide hard
+    seeds (2400 scenes) the 44 it refused at or above the threshold were published at 0.80 on
+    average, right 29 and grossly wrong 11 times."""
+    if why is None or why == "threshold" or not np.isfinite(p):
+        return p
+    gate = cfg.single_pair_threshold if why == "too few vehicles" else 1.0
+    return float(min(p * thr / max(gate, thr), np.nextafter(thr, 0.0)))
+
+
 def single_pair_unconfirmed(confidence: float, features: dict,
                             cfg: ConfidenceConfig = ConfidenceConfig(),
                             published_pairs: int | None = None) -> bool:

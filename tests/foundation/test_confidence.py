@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mmatch.ego.confidence import (CHI2_3_95, FEATURES, PairContext, features, inside_ellipse, pose_error,
-                                   tells_poses_apart)
+                                   published_confidence, tells_poses_apart)
 from mmatch.evaluate import EvalConfig, evaluate_scene, sureness_report
 from mmatch.sim.scenario import scene_from_world
 from mmatch.shared import SharedFrame
@@ -303,8 +303,14 @@ def test_an_estimate_on_one_unconfirmed_pair_needs_the_single_pair_threshold(
     res = fuser.fuse(shared_from_labels(scene.ego, "ego"), shared_from_labels(scene.cav, "cav"))
     assert res.status == status, res.reason
     assert len(res.pairs) == published
+    thr = published_confidence(fuser._threshold)
     if status == "no-estimate":
         assert res.reason == "too few vehicles" and res.refused_T is not None
+        # refused by the single-pair gate: published below the threshold, in proportion
+        assert res.confidence == pytest.approx(published_confidence(confidence * fuser._threshold / 0.75))
+        assert res.confidence < thr
+    else:
+        assert res.confidence == pytest.approx(published_confidence(confidence)) and res.confidence >= thr
 
 
 @pytest.mark.parametrize("min_margin, margin, status", [
@@ -330,6 +336,8 @@ def test_the_margin_gate_is_off_unless_configured(monkeypatch, min_margin, margi
     assert res.status == status, res.reason
     if status == "no-estimate":
         assert res.reason == "ambiguous"
+        assert res.confidence == pytest.approx(published_confidence(0.9 * fuser._threshold))
+    assert (res.confidence >= published_confidence(fuser._threshold)) == (status == "fused")
 
 
 def test_a_track_is_published_at_its_own_threshold_unless_one_is_set():
@@ -339,6 +347,17 @@ def test_a_track_is_published_at_its_own_threshold_unless_one_is_set():
     assert threshold(tracked=True) == 0.6 != threshold()
     assert threshold(ConfidenceConfig(track_threshold=None), tracked=True) == threshold()
     assert threshold(ConfidenceConfig(threshold=0.0), tracked=True) == 0.0     # emit everything
+
+
+def test_a_frame_another_gate_refused_publishes_below_the_threshold_in_order():
+    from mmatch.ego.confidence import ConfidenceConfig, refused_probability
+    cfg = ConfidenceConfig()
+    assert refused_probability(0.9, None, 0.33) == 0.9 and refused_probability(0.2, "threshold", 0.33) == 0.2
+    lone = [refused_probability(p, "too few vehicles", 0.33, cfg) for p in (0.2, 0.5, 0.74)]
+    assert lone == pytest.approx([0.2 * 0.44, 0.5 * 0.44, 0.74 * 0.44]) and lone == sorted(lone)
+    assert max(lone) < 0.33
+    assert refused_probability(1.0, "ambiguous", 0.33, cfg) < 0.33 < refused_probability(0.9, None, 0.33)
+    assert np.isnan(refused_probability(float("nan"), "ambiguous", 0.33, cfg))
 
 
 def test_refusal_names_the_gate_a_single_frame_fails():
@@ -409,7 +428,6 @@ def test_the_chooser_picks_among_candidates_and_the_average_rates_the_choice(har
     confidence is that candidate's mean of the regression's and the trees' probabilities, as the
     model's calibration publishes it."""
     from mmatch.ego.base import velocity_heading_yaws
-    from mmatch.ego.confidence import published_confidence
     from mmatch.evaluate import prepare_scene
     from mmatch.fusion import Fuser, FusionConfig
     from mmatch.scene_io import load_scene
