@@ -170,7 +170,8 @@ class EgoSection:
     link_expire_s: float = _opt(30.0, lo=0.0, lo_open=True, hi=3600.0,
                                 doc="every-CAV mode: a CAV silent this long is forgotten (frees its link), s")
     frame_budget_s: float = _opt(0.04, lo=0.0, lo_open=True, hi=10.0,
-                                 doc="live only: no further CAV is fused once fusing a frame took this long, s")
+                                 doc="live only: no further CAV is fused once fusing a frame took this long (the CAV "
+                                     "fused least recently goes first, so each takes its turn), s")
     max_vehicles: int = _opt(64, lo=1, hi=65535, doc="a received frame with more vehicles is refused")
     max_points: int = _opt(2048, lo=0, hi=65535, doc="... with more vehicle points is refused")
     max_background: int = _opt(2048, lo=0, hi=65535, doc="... with more background points is refused")

@@ -64,6 +64,7 @@ class LinkState:
     ever_up: bool = False
     confidence: float | None = None   # of the latest fusion with this CAV (null: no estimate)
     ambiguity: float | None = None
+    turn: int = -1                    # when it was last fused, counted in fusions (-1: never)
 
 
 @dataclass
@@ -149,6 +150,7 @@ class Node:
         self._seq = {"shared": Sequence(), "fused": Sequence()}
         self.counters = NodeCounters()
         self.links: dict[str, LinkState] = {c: LinkState() for c in cfg.ego.cavs}
+        self._turns = 0                   # fusions so far (LinkState.turn)
         self._inbox: dict[str, collections.deque] = {}
         self._cond = threading.Condition()
         self.last_result: dict | None = None
@@ -332,7 +334,11 @@ class Node:
         live_skips = None
         if self.replay_skips is not None:
             live_skips = self.replay_skips.get((int(frame.seq), logschema.stamp_key(frame.stamp)), [])
-        for name, other in choice.items():
+        # the CAV fused least recently goes first (then by name): under a budget that keeps
+        # running out, the CAVs take turns instead of the same ones being left out every frame
+        waited = sorted(choice, key=lambda n: (self.links[n].turn if n in self.links else -1, n))
+        for name in waited:
+            other = choice[name]
             # the first CAV is always fused: a late frame costs latency, never the estimate
             over = (results and self.budget_s is not None
                     and time.perf_counter() - t_start > self.budget_s)
@@ -354,6 +360,8 @@ class Node:
             if link is not None:
                 link.confidence = cavs[-1]["confidence"]
                 link.ambiguity = cavs[-1]["ambiguity"]
+                self._turns += 1
+                link.turn = self._turns
         if skipped:
             self.counters.budget_skipped += len(skipped)
             log.warning("frame %d: over the time budget, not fused with %s", frame.seq,

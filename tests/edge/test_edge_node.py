@@ -7,7 +7,7 @@ import pytest
 from edge_fakes import FAKE, encode, process_view
 
 from mmatch.edge import config, keys
-from mmatch.edge.logschema import SensorFrame
+from mmatch.edge.logschema import SensorFrame, stamp_key
 from mmatch.edge.node import Node
 from mmatch.edge.sources.base import default_camera
 from mmatch.errors import DecodeError
@@ -173,6 +173,20 @@ def test_frame_budget_leaves_out_further_cavs_and_a_replay_leaves_out_the_same()
     again.replay_skips = {(1, 10_010_000_000): ["cav3"]}
     rep = again.process(_frame(1, 10.01))
     assert [c["id"] for c in rep["cavs"]] == ["cav1", "cav2"] and rep["budget_skipped"] == ["cav3"]
+    # a budget that keeps running out: the CAV fused least recently goes first, so each takes
+    # its turn at being left out (and a replay, given the same skips, fuses in the same order)
+    skipped, order = [], []
+    for k in range(2, 5):
+        for node in (live, again):
+            for c in ("cav1", "cav2", "cav3"):
+                node.on_shared(c, _cav_bytes(c, k, 10.0 + 0.05 * k))
+        msg = live.process(_frame(k, 10.01 + 0.05 * k))
+        skipped.append(msg["budget_skipped"])
+        order.append([c["id"] for c in msg["cavs"]])
+        again.replay_skips = {(k, stamp_key(10.01 + 0.05 * k)): msg["budget_skipped"]}
+        assert [c["id"] for c in again.process(_frame(k, 10.01 + 0.05 * k))["cavs"]] == order[-1]
+    assert skipped == [["cav2"], ["cav1"], ["cav3"]]
+    assert order == [["cav3", "cav1"], ["cav2", "cav3"], ["cav1", "cav2"]]
 
 
 def test_every_cav_mode_caps_links_and_forgets_silent_ones():
