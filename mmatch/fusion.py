@@ -12,8 +12,9 @@ import numpy as np
 from mmatch.ego.base import (AlignResult, MatchContext, MatchResult, far_side_centres,
                              velocity_heading_yaws, without_heading_prior)
 from mmatch.ego.confidence import (Assessment, ConfidenceConfig, PairContext, assess_many, published_confidence,
-                                   refusal, refused_probability, shared_view, single_pair_unconfirmed,
-                                   tells_poses_apart, threshold, vehicle_distances, with_information)
+                                   refusal, refused_probability, scaled_below, shared_view,
+                                   single_pair_unconfirmed, tells_poses_apart, threshold, vehicle_distances,
+                                   with_information)
 from mmatch.ego.observations import observations_shared, observe
 from mmatch.ego.rigid import near_transforms, rot2, se2_to_matrix
 from mmatch.ego.descriptor_scale import RunningDescriptorScale
@@ -303,9 +304,8 @@ class Fuser:
         if confidence < thr or young:
             reason = "unconfirmed" if young and confidence >= thr else \
                 ("contested" if contested else (reason or "track not sure"))
-            if reason == "unconfirmed":     # below the threshold, as a single frame's other gates publish
-                sure["confidence"] = float(min(confidence * thr / max(tcfg.sure_at_once or 1.0, thr),
-                                               np.nextafter(thr, 0.0)))
+            if reason == "unconfirmed" and thr > 0:   # below the threshold, as a single frame's gates publish
+                sure["confidence"] = scaled_below(confidence, thr, tcfg.sure_at_once or 1.0)
             return FusionResult("no-estimate", reason, objects=own_objs, timings=timings,
                                 refused_T=T, **sure)
         return FusionResult("fused", "" if hit else "tracked", T, pairs, merge_objects(own, other, T, pairs),

@@ -950,7 +950,11 @@ def refused_probability(p: float, why: str | None, thr: float, cfg: ConfidenceCo
     average, right 29 and grossly wrong 11 times."""
     if why is None or why == "threshold" or not np.isfinite(p):
         return p
-    gate = cfg.single_pair_threshold if why == "too few vehicles" else 1.0
+    return scaled_below(p, thr, cfg.single_pair_threshold if why == "too few vehicles" else 1.0)
+
+
+def scaled_below(p: float, thr: float, gate: float) -> float:
+    """p (at most `gate`, the level a gate asks) scaled by thr / gate, kept below thr (> 0)."""
     return float(min(p * thr / max(gate, thr), np.nextafter(thr, 0.0)))
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mmatch.ego.confidence import ConfidenceConfig
 from mmatch.ego.rigid import se2_to_matrix
 from mmatch.ego.track import TrackConfig, Tracker
 from mmatch.ego.track.predict import MAX_BELIEF_RECORDS, MAX_YAW_RATE
@@ -180,6 +181,10 @@ def test_a_confident_first_frame_is_published_at_once_and_a_less_sure_one_waits_
     assert spread < 0.9 and sure >= 0.75 and rte_m(w.truth(4.97, 4.95), held.refused_T) < 1.0
     # ... and refused, it is published below the threshold: sure_at_once is 1 here
     assert held.confidence == pytest.approx(sure * 0.6) and held.confidence < 0.6
+    # (a threshold of 0 has nothing to stay below: the track's own confidence)
+    everything = Fuser(FusionConfig(track=TrackConfig(max_age_s=2.0, sure_at_once=None),
+                                    confidence=ConfidenceConfig(threshold=0.0))).fuse(own, oth)
+    assert everything.reason == "unconfirmed" and everything.confidence == pytest.approx(sure)
     lower = TrackConfig(max_age_s=2.0, sure_at_once=sure - 1e-6)
     higher = TrackConfig(max_age_s=2.0, sure_at_once=sure + 1e-6)
     at_once = Fuser(FusionConfig(track=lower)).fuse(own, oth)
