@@ -127,13 +127,16 @@ class ConfidenceConfig:
     along the background's main direction; moving_half_fov_deg / moving_range_m /
     moving_gate_m: where a radar sees moving returns and how near another view's must land to
     agree with one (moving_agreement: a vehicle moves by its speed times the stamp difference,
-    up to 1.5 m at 30 m/s and 50 ms); inflation: factor on the covariance (None: the fitted
+    up to 1.5 m at 30 m/s and 50 ms); min_body_m: (width, length) m of the smallest vehicle body
+    behind a radar: a candidate whose pose lays the two such bodies on each other has
+    probability 0 (`bodies_overlap`); inflation: factor on the covariance (None: the fitted
     model's); model_path: the fitted probability model (None: the packaged one)."""
 
     threshold: float | None = None
     min_margin: float | None = None
     track_threshold: float | None = 0.6
     single_pair_threshold: float = 0.75
+    min_body_m: tuple[float, float] = (1.5, 3.5)
     distinct_m: float = 5.0
     distinct_deg: float = 10.0
     bg_sigma_m: float = 0.5
@@ -1040,6 +1043,22 @@ def _inflation(cfg: ConfidenceConfig, model: ProbabilityModel | None) -> float:
     return cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
 
 
+def bodies_overlap(R: np.ndarray, t: np.ndarray, body_m: tuple[float, float] = (1.5, 3.5)) -> np.ndarray:
+    """(H,) whether hypotheses R (H, 2, 2), t (H, 2) of T_ego_cav lay the two vehicles' bodies on
+    each other: each body a rectangle body_m (width, length; m) behind its radar (DESIGN.md: the
+    radar at the front, y forward), the smallest a vehicle has, so no true pose does (separating
+    axes: the rectangles overlap unless one of their four edge directions parts them)."""
+    w, length = body_m
+    corners = np.array([[-w / 2, 0.0], [w / 2, 0.0], [w / 2, -length], [-w / 2, -length]])
+    own = np.broadcast_to(corners, (len(R), 4, 2))
+    other = corners @ R.transpose(0, 2, 1) + t[:, None]                         # (H, 4, 2) Ego frame
+    axes = np.concatenate([np.broadcast_to(np.eye(2), (len(R), 2, 2)), R.transpose(0, 2, 1)], axis=1)  # (H, 4, 2)
+    pa = np.einsum("hcd,had->hac", own, axes)                                     # (H, 4 axes, 4 corners)
+    pb = np.einsum("hcd,had->hac", other, axes)
+    parted = (pa.max(axis=2) < pb.min(axis=2)) | (pb.max(axis=2) < pa.min(axis=2))
+    return ~parted.any(axis=1)
+
+
 def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarray | list[np.ndarray],
                 match: MatchResult | None = None, distances: np.ndarray | None = None) -> list[Assessment]:
     """Confidence, covariance, ambiguity and the reason against each hypothesis (see the module doc).
@@ -1053,6 +1072,11 @@ def assess_many(ctx: PairContext, R: np.ndarray, t: np.ndarray, pairs: np.ndarra
     p, choice = model.rate(X) if model is not None else (np.full(len(X), np.nan),) * 2
     reasons = [REASONS[FEATURES[k]] for k in np.argmin(model.logit_terms(X), axis=1)] if model is not None \
         else [""] * len(X)
+    if model is not None:
+        # a pose that lays the two vehicles' bodies on each other cannot be: probability 0
+        impossible = bodies_overlap(np.asarray(R, float), np.asarray(t, float), cfg.min_body_m)
+        p, choice = np.where(impossible, 0.0, p), np.where(impossible, 0.0, choice)
+        reasons = ["poor fit" if bad else why for bad, why in zip(impossible, reasons)]
     return [Assessment(ph, cov[h], ah, reasons[h], dict(zip(FEATURES, xh)), ch,
                        assigned[h] if assigned is not None else None)
             for h, (ph, ah, xh, ch) in enumerate(zip(p.tolist(), amb.tolist(), X.tolist(), choice.tolist()))]

@@ -241,6 +241,37 @@ def test_the_other_radar_hidden_behind_a_nearer_vehicle_is_not_counted_unseen(x,
     assert dict(zip(FEATURES, X[0]))["sighting"] == sighting
 
 
+@pytest.mark.parametrize("yaw_deg, x, y, overlap", [
+    (0, 0.0, 1.0, True),        # 1 m ahead, same heading: its body on our bonnet
+    (0, 0.0, 4.0, False),       # 4 m ahead: its body ends 0.5 m before our radar
+    (0, 2.0, 0.0, False),       # side by side, 2 m apart
+    (0, 0.0, -3.4, True),       # its radar inside our body
+    (180, 0.0, -2.0, True),     # facing us, its front inside our body
+    (90, 0.0, -6.0, False),     # crossing 6 m behind our radar
+    (45, 1.0, -1.0, True),      # turned, a rear corner across our side
+    (45, 1.5, -1.0, False),     # ... 0.2 m clear of it
+])
+def test_a_pose_that_lays_the_two_bodies_on_each_other_is_impossible(yaw_deg, x, y, overlap):
+    from mmatch.ego.confidence import bodies_overlap
+    from mmatch.ego.rigid import rot2
+    got = bodies_overlap(rot2(np.radians([yaw_deg, 0.0])), np.array([[x, y], [0.0, 30.0]]))
+    assert got.tolist() == [overlap, False]
+
+
+def test_an_impossible_pose_has_probability_zero_whatever_its_evidence():
+    from mmatch.ego.confidence import assess_many
+    from mmatch.label_frames import shared_from_labels
+    from mmatch.ego.rigid import rot2
+    scene = scene_from_world(CASES["one co-visible vehicle"](), 0, "nominal", name="one")
+    own, other = shared_from_labels(scene.ego, "ego"), shared_from_labels(scene.cav, "cav")
+    T = scene.gt_T_ego_cav
+    R = np.stack([T[:2, :2], rot2(np.array(0.0))])
+    t = np.stack([T[:2, 3], np.array([0.0, 1.0])])               # the truth, and 1 m ahead of us
+    right, impossible = assess_many(PairContext(own, other), R, t, np.zeros((0, 2), int))
+    assert right.confidence > 0.5 and impossible.confidence == 0.0 and impossible.choice == 0.0
+    assert impossible.reason == "poor fit"
+
+
 def test_a_pose_that_turns_the_shared_vehicles_velocity_off_the_road_is_marked():
     # Ego and CAV side by side, both at 10 m/s along +y; a car ahead between them at 15 m/s:
     # the two radial speeds solve to its velocity only under the right rotation
