@@ -1045,9 +1045,11 @@ def _inflation(cfg: ConfidenceConfig, model: ProbabilityModel | None) -> float:
 
 def bodies_overlap(R: np.ndarray, t: np.ndarray, body_m: tuple[float, float] = (1.5, 3.5)) -> np.ndarray:
     """(H,) whether hypotheses R (H, 2, 2), t (H, 2) of T_ego_cav lay the two vehicles' bodies on
-    each other: each body a rectangle body_m (width, length; m) behind its radar (DESIGN.md: the
-    radar at the front, y forward), the smallest a vehicle has, so no true pose does (separating
-    axes: the rectangles overlap unless one of their four edge directions parts them)."""
+    each other: each body a rectangle body_m (width, length; m) behind its radar (the radar at the
+    front bumper, y forward, as ego/base.py `SightingModel` takes it), the smallest a vehicle has,
+    so no true pose does (separating axes: the rectangles overlap unless one of their four edge
+    directions parts them). A radar mounted mid-vehicle puts part of this rectangle behind the
+    body: a CAV tailgating within about a metre could then be refused wrongly."""
     w, length = body_m
     corners = np.array([[-w / 2, 0.0], [w / 2, 0.0], [w / 2, -length], [-w / 2, -length]])
     own = np.broadcast_to(corners, (len(R), 4, 2))
