@@ -1043,7 +1043,8 @@ def _inflation(cfg: ConfidenceConfig, model: ProbabilityModel | None) -> float:
     return cfg.inflation if cfg.inflation is not None else (model.inflation if model else 1.0)
 
 
-def bodies_overlap(R: np.ndarray, t: np.ndarray, body_m: tuple[float, float] = (1.5, 3.5)) -> np.ndarray:
+def bodies_overlap(R: np.ndarray, t: np.ndarray,
+                   body_m: tuple[float, float] = ConfidenceConfig.min_body_m) -> np.ndarray:
     """(H,) whether hypotheses R (H, 2, 2), t (H, 2) of T_ego_cav lay the two vehicles' bodies on
     each other: each body a rectangle body_m (width, length; m) behind its radar (the radar at the
     front bumper, y forward, as ego/base.py `SightingModel` takes it), the smallest a vehicle has,
