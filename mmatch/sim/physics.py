@@ -91,6 +91,9 @@ KNOBS: dict[str, Knob] = {
                                   hi_limit=20.0),
     "extrinsic_trans_err_m": Knob(0.02, (0.0, 0.05), "camera-radar extrinsic translation error, m (max)",
                                   hi_limit=2.0),
+    "camera_focal_scale": Knob(1.0, (1.0, 1.0), "factor on the cameras' focal length (900-1100 px at 1280 px: "
+                               "30-35 deg either side); each vehicle knows its own (K), so `wide` keeps ours and "
+                               "cfg/physics/cameras-*.toml test others", log=True, lo_limit=0.2, hi_limit=5.0),
     # scene composition
     "few_covisible_share": Knob(0.1, (0.1, 0.1), "share of scenes drawn with fewer than two co-visible vehicles",
                                 hi_limit=1.0),
@@ -164,6 +167,7 @@ class PhysicsSample:
     score_bias: float
     extrinsic_rot_err_deg: float
     extrinsic_trans_err_m: float
+    camera_focal_scale: float
     few_covisible_share: float
 
     def as_dict(self) -> dict[str, float]:

@@ -69,3 +69,22 @@ def test_the_shipped_families_beyond_wide_load_and_stress_lies_inside_the_traini
         assert lo <= s_lo and hi >= s_hi, key                    # and the stress family
         widened += (lo, hi) != (w_lo, w_hi)
     assert widened == 8
+
+
+def test_camera_families_change_the_field_of_view_and_wide_keeps_ours():
+    """`camera_focal_scale` scales each camera's focal length: the wide-angle family's cameras
+    see 40-52 deg either side of their axis, the narrow family's 19-27, ours 30-35 (K in the
+    scene files; the CAV side and the Ego read each camera's own)."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2] / "cfg" / "physics"
+
+    def half_fov_deg(scene) -> list[float]:
+        return [float(np.degrees(np.arctan(v.camera.image_size[0] / 2 / v.camera.K[0, 0]))) for v in (scene.ego, scene.cav)]
+
+    ours = [a for i in range(3) for a in half_fov_deg(make_scene(7, i, "hard", "wide"))]
+    wide_angle = [a for i in range(3) for a in half_fov_deg(make_scene(7, i, "hard", root / "cameras-wide-angle.toml"))]
+    narrow = [a for i in range(3) for a in half_fov_deg(make_scene(7, i, "hard", root / "cameras-narrow.toml"))]
+    assert 30 <= min(ours) and max(ours) <= 35.5
+    assert 40 <= min(wide_angle) and max(wide_angle) <= 52.5
+    assert 18.5 <= min(narrow) and max(narrow) <= 27.5
+    assert family("wide").ranges["camera_focal_scale"] == (1.0, 1.0)   # our camera: no draw, scenes as before
