@@ -1,7 +1,14 @@
 """Reading and writing `mmatch-scene/1` and `mmatch-radar/1` files (DESIGN.md).
 
 Readers validate every key (presence, dtype kind, shape, finiteness) and raise
-`SceneFormatError` naming the file and the key; they never return half-checked data.
+`SceneFormatError` naming the file and the key; they never return half-checked data. The
+geometry must be a camera and rigid motions (geometry_checks.py, the camera calibration
+loader's checks): K a pinhole matrix (last row 0, 0, 1, positive focal lengths, a horizontal
+field of view of 5-175 deg), `V_T_cam_radar` and `gt_T_ego_cav` rotations (orthonormal within
+1e-3, det +1) with a last row 0, 0, 0, 1. A zero focal length used to be read and gave "no
+vehicles" without a word; a scaled or mirrored transform would have been read as a pose.
+Value ranges the pipeline copes with (scores, depths, descriptors as another producer may
+give them) are not refused here.
 """
 
 from __future__ import annotations
@@ -13,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mmatch.errors import SceneFormatError
+from mmatch.geometry_checks import pinhole_problem, rigid_problem
 from mmatch.types import DESCRIPTOR_DIM, CameraModel, Scene, View
 
 SCENE_FORMAT = "mmatch-scene/1"
@@ -54,6 +62,11 @@ class _Reader:
         return arr
 
 
+def _check(r: _Reader, key: str, problem: str | None) -> None:
+    if problem is not None:
+        raise r.fail(key, problem)
+
+
 def _read_view(r: _Reader, v: str) -> View:
     points = r.get(f"{v}_points", "f", (None, 5)).astype(np.float32)
     boxes = r.get(f"{v}_boxes", "f", (None, 6)).astype(np.float32)
@@ -64,7 +77,9 @@ def _read_view(r: _Reader, v: str) -> View:
     size = r.get(f"{v}_image_size", "i", (2,))
     if np.any(size <= 0):
         raise r.fail(f"{v}_image_size", f"non-positive size {size.tolist()}")
+    _check(r, f"{v}_K", pinhole_problem(K, int(size[0])))
     T = r.get(f"{v}_T_cam_radar", "f", (4, 4)).astype(np.float64)
+    _check(r, f"{v}_T_cam_radar", rigid_problem(T))
     stamp = float(r.get(f"{v}_stamp", "f", ()))
     height = float(r.get(f"{v}_radar_height", "f", ()))
     labels = r.get(f"{v}_point_labels", "i", (len(points),), optional=True)
@@ -94,6 +109,7 @@ def load_scene(path: str | Path) -> Scene:
         ego = _read_view(r, "ego")
         cav = _read_view(r, "cav")
         T = r.get("gt_T_ego_cav", "f", (4, 4)).astype(np.float64)
+        _check(r, "gt_T_ego_cav", rigid_problem(T))
         pairs = r.get("gt_pairs", "i", (None, 2)).astype(np.int32)
         if len(pairs) and (pairs[:, 0].min() < 0 or pairs[:, 0].max() >= len(ego.boxes)
                            or pairs[:, 1].min() < 0 or pairs[:, 1].max() >= len(cav.boxes)):

@@ -22,7 +22,6 @@ orthonormal (|R^T R - I| < 1e-3) with det +1, last row (0, 0, 0, 1), translation
 
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +31,7 @@ import numpy as np
 from mmatch.drivers.camera.depth import GroundPlane
 from mmatch.drivers.camera.errors import CalibrationError
 from mmatch.errors import MMatchError
+from mmatch.geometry_checks import pinhole_problem, rigid_problem
 from mmatch.types import CameraModel
 
 FORMAT = "mmatch-camera-calibration/1"
@@ -147,18 +147,9 @@ def validate(
             path, "camera.K", f"expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}"
         )
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    if fx <= 0 or fy <= 0:
-        raise CalibrationError(
-            path, "camera.K", f"focal lengths must be positive (fx={fx}, fy={fy})"
-        )
-    hfov = math.degrees(2 * math.atan(W / (2 * fx)))
-    if not 5.0 <= hfov <= 175.0:
-        raise CalibrationError(
-            path,
-            "camera.K",
-            f"fx={fx:g} px gives a horizontal field of view of {hfov:.1f} deg "
-            f"for width {W} px; expected 5..175 deg (focal length in px?)",
-        )
+    problem = pinhole_problem(K, W)
+    if problem is not None:
+        raise CalibrationError(path, "camera.K", problem)
     if not 0.5 <= fx / fy <= 2.0:
         raise CalibrationError(path, "camera.K", f"fx/fy = {fx / fy:.3f} outside [0.5, 2]")
     if not (0 <= cx <= W and 0 <= cy <= H):
@@ -176,22 +167,9 @@ def validate(
     if not np.isfinite(d).all():
         raise CalibrationError(path, "camera.dist", "contains a non-finite value")
     T = _matrix(path, "extrinsic.T_cam_radar", T_cam_radar, (4, 4))
-    if not np.allclose(T[3], (0, 0, 0, 1), atol=1e-9):
-        raise CalibrationError(
-            path, "extrinsic.T_cam_radar", f"last row must be [0, 0, 0, 1], got {T[3].tolist()}"
-        )
-    R = T[:3, :3]
-    err = float(np.abs(R.T @ R - np.eye(3)).max())
-    if err > 1e-3:
-        raise CalibrationError(
-            path,
-            "extrinsic.T_cam_radar",
-            f"rotation is not orthonormal (max |R^T R - I| = {err:.2e})",
-        )
-    if np.linalg.det(R) < 0:
-        raise CalibrationError(
-            path, "extrinsic.T_cam_radar", "rotation has det -1 (a reflection; check axis signs)"
-        )
+    problem = rigid_problem(T)
+    if problem is not None:
+        raise CalibrationError(path, "extrinsic.T_cam_radar", problem)
     if np.linalg.norm(T[:3, 3]) > 10.0:
         raise CalibrationError(
             path, "extrinsic.T_cam_radar", f"translation {T[:3, 3].tolist()} is over 10 m (units?)"

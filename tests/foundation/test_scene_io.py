@@ -39,6 +39,12 @@ def test_round_trip_is_exact(tmp_path, scene):
     ("gt_pairs", np.array([[99, 0]], np.int32), "out of range"),
     ("format", np.array("mmatch-scene/0"), "is not"),
     ("meta", np.array("{not json"), "JSON"),
+    ("ego_K", np.diag([0.0, 900.0, 1.0]), "focal lengths"),                    # read before: "no vehicles"
+    ("cav_K", np.array([[900.0, 0, 640], [0, 900, 360], [0, 0, 2]]), "last row"),
+    ("ego_K", np.diag([9.0, 9.0, 1.0]), "field of view"),                        # focal in mm, not px
+    ("cav_T_cam_radar", np.diag([2.0, 2.0, 2.0, 1.0]), "orthonormal"),          # a scaled rotation
+    ("ego_T_cam_radar", np.diag([1.0, -1.0, 1.0, 1.0]), "det -1"),              # a mirrored axis
+    ("gt_T_ego_cav", np.vstack([np.eye(4)[:3], [0.0, 0.0, 1.0, 1.0]]), "last row"),
 ])
 def test_broken_key_is_named(tmp_path, scene, key, value, words):
     arrays = scene_arrays(scene)
