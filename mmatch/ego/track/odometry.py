@@ -31,13 +31,15 @@ from scipy.spatial import cKDTree
 
 @dataclass(frozen=True)
 class OdometryConfig:
-    """search_deg / coarse_deg: the rotation searched within +-search_deg of the guess in
-    coarse_deg steps, then refined by `iterations` Gauss-Newton steps; gate_m: a
+    """search_deg / max_turn_dps / coarse_deg: the rotation searched within +-search_deg of the
+    guess, or +-max_turn_dps x dt when frames are farther apart (a gap in the frames: a turn can
+    begin unseen), in coarse_deg steps, then refined by `iterations` Gauss-Newton steps; gate_m: a
     correspondence farther than this counts as this far (trimmed cost); min_points: each
     background needs this many points and the best rotation this many correspondences within
     gate_m; min_sigma_deg: the smallest standard deviation a rotation is given."""
 
     search_deg: float = 9.0
+    max_turn_dps: float = 60.0
     coarse_deg: float = 1.5
     iterations: int = 3
     gate_m: float = 1.0
@@ -71,7 +73,7 @@ def rotation(prev_bg: np.ndarray, now_bg: np.ndarray, v_prev: np.ndarray, v_now:
     if len(prev) < cfg.min_points or len(now) < cfg.min_points or not dt > 0:
         return None
     tree = cKDTree(now)
-    span, step = np.radians(cfg.search_deg), np.radians(cfg.coarse_deg)
+    span, step = np.radians(max(cfg.search_deg, cfg.max_turn_dps * dt)), np.radians(cfg.coarse_deg)
     coarse = guess + np.arange(-span, span + step / 2, step)
     _, moved = _moved(prev, v_prev, v_now, coarse, dt)
     dist, _ = tree.query(moved.reshape(-1, 2), distance_upper_bound=cfg.gate_m)
