@@ -61,6 +61,18 @@ def test_a_turn_across_a_gap_in_the_frames_is_searched_as_wide_as_the_gap_allows
     assert got is not None and abs(np.degrees(got[0]) - 18.0) < 0.5
 
 
+def test_a_sender_s_largest_background_is_thinned_and_still_measured():
+    """4096 background points (the wire's cap) are thinned to about 600 before the search: the
+    rotation is found as from the full set."""
+    rng = np.random.default_rng(8)
+    before, after = _seen(_pose(0.0, 0.0, 0.0), rng), _seen(_pose(-0.05, 1.0, 3.0), rng)
+    dense_before = np.repeat(before, int(np.ceil(4096 / len(before))), axis=0)[:4096] + rng.normal(0, 0.05, (4096, 2))
+    dense_after = np.repeat(after, int(np.ceil(4096 / len(after))), axis=0)[:4096] + rng.normal(0, 0.05, (4096, 2))
+    v = np.array([0.0, 10.0])
+    got = rotation(dense_before, dense_after, v, v, 0.1)
+    assert got is not None and abs(np.degrees(got[0]) - 3.0) < 0.5
+
+
 def test_too_sparse_a_background_measures_nothing():
     rng = np.random.default_rng(4)
     sparse = _seen(_pose(0, 0, 0), rng)[:10]

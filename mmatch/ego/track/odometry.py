@@ -36,7 +36,9 @@ class OdometryConfig:
     begin unseen), in coarse_deg steps, then refined by `iterations` Gauss-Newton steps; gate_m: a
     correspondence farther than this counts as this far (trimmed cost); min_points: each
     background needs this many points and the best rotation this many correspondences within
-    gate_m; min_sigma_deg: the smallest standard deviation a rotation is given."""
+    gate_m; max_points: a background of more points is thinned to about this many (every k-th:
+    our CAV side sends at most 600, cav/config.py; a sender's 4096 must not cost the Ego its
+    rate); min_sigma_deg: the smallest standard deviation a rotation is given."""
 
     search_deg: float = 9.0
     max_turn_dps: float = 60.0
@@ -44,6 +46,7 @@ class OdometryConfig:
     iterations: int = 3
     gate_m: float = 1.0
     min_points: int = 15
+    max_points: int = 600
     min_sigma_deg: float = 0.5
 
 
@@ -63,13 +66,18 @@ def _moved(prev: np.ndarray, v_prev: np.ndarray, v_now: np.ndarray, phi: np.ndar
     return q, np.stack([c * q[..., 0] + s * q[..., 1], -s * q[..., 0] + c * q[..., 1]], axis=-1)
 
 
+def _thinned(points: np.ndarray, at_most: int) -> np.ndarray:
+    """Every k-th of points (N, 2), k the smallest that leaves at most `at_most`."""
+    return points[:: int(np.ceil(len(points) / at_most))] if len(points) > at_most else points
+
+
 def rotation(prev_bg: np.ndarray, now_bg: np.ndarray, v_prev: np.ndarray, v_now: np.ndarray, dt: float,
              guess: float = 0.0, cfg: OdometryConfig = OdometryConfig()) -> tuple[float, float] | None:
     """The radar's rotation (rad, counter-clockwise) from the frame of background prev_bg (N, 2+)
     to the frame of now_bg (M, 2+), both x, y in their own radar frames (m), over dt s with
     Doppler velocities v_prev, v_now (2,) m/s; and its standard deviation (rad). None when a
     background is too sparse or too few points correspond."""
-    prev, now = np.asarray(prev_bg, float)[:, :2], np.asarray(now_bg, float)[:, :2]
+    prev, now = (_thinned(np.asarray(b, float)[:, :2], cfg.max_points) for b in (prev_bg, now_bg))
     if len(prev) < cfg.min_points or len(now) < cfg.min_points or not dt > 0:
         return None
     tree = cKDTree(now)

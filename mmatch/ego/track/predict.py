@@ -203,8 +203,9 @@ class Tracker:
         out: list[tuple[float, float] | None] = []
         for k, (frame, v_prev, dt) in enumerate(((own, track.v_own, dt_own), (other, track.v_other, dt_other))):
             guess = float(best.x[3 + k]) * dt if best is not None else 0.0
+            known = bool(np.all(np.isfinite(np.asarray(frame.ego_velocity, float))))   # else no translation
             r = rotation(prev[k], frame.background, v_prev, velocity_of(frame), dt, guess, self.cfg.odometry) \
-                if dt > 0 else None
+                if dt > 0 and known else None
             out.append(None if r is None else (r[0] / dt, (r[1] / dt) ** 2))
         return out
 
