@@ -10,7 +10,7 @@ import numpy as np
 def rigid_problem(T: np.ndarray) -> str | None:
     """Why a finite (4, 4) T is not a rotation and a translation (last row 0, 0, 0, 1; rotation
     orthonormal within 1e-3, det +1), or None."""
-    if not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0), atol=1e-6):
+    if not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0), atol=1e-9):
         return f"last row must be [0, 0, 0, 1], got {T[3].tolist()}"
     R = T[:3, :3]
     err = float(np.abs(R.T @ R - np.eye(3)).max())
@@ -24,7 +24,7 @@ def rigid_problem(T: np.ndarray) -> str | None:
 def pinhole_problem(K: np.ndarray, width: int) -> str | None:
     """Why a finite (3, 3) K is not a pinhole camera's for an image `width` px wide (last row
     0, 0, 1; positive focal lengths; a horizontal field of view of 5-175 deg), or None."""
-    if not np.allclose(K[2], (0.0, 0.0, 1.0), atol=1e-6):
+    if not np.allclose(K[2], (0.0, 0.0, 1.0), atol=1e-9):
         return f"last row must be [0, 0, 1], got {K[2].tolist()}"
     fx, fy = float(K[0, 0]), float(K[1, 1])
     if fx <= 0 or fy <= 0:
